@@ -1,0 +1,312 @@
+"""The segment map and its reference points in the Hough domain (DESIGN §3.4).
+
+A map is a set of segments of two kinds: ``wall`` (range sensors see it, it occludes) and ``line``
+(painted on the floor: only a camera sees it, it occludes nothing). Collinear segments — a wall
+broken by doors — are merged into one *line*, which is one reference point in the Hough domain;
+each segment keeps its own extent along that line.
+
+World lines are stored in the canonical form ``n·p = r`` with ``n = (cos α, sin α)``, α ∈ [0, π).
+Seen from a pose, a line becomes the robot-frame Hough point (θ_r, ρ_r) with ρ_r ≥ 0, θ_r ∈ [0, 2π).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from scipy.spatial import cKDTree
+
+from houghloc.geometry import TWO_PI
+
+SegmentKind = Literal["wall", "line"]
+
+
+class MapError(ValueError):
+    """A map file or map definition that cannot be used; the message names the file and entry."""
+
+
+class _SegmentEntry(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    id: str | None = None
+    kind: SegmentKind = "wall"
+    start: tuple[float, float] = Field(alias="from")
+    end: tuple[float, float] = Field(alias="to")
+
+    @field_validator("start", "end")
+    @classmethod
+    def _finite(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not all(math.isfinite(c) for c in v):
+            raise ValueError("coordinates must be finite numbers")
+        return v
+
+
+class _MapFile(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str = "unnamed"
+    frame: str = "map"
+    units: Literal["m"] = "m"
+    segments: list[_SegmentEntry] = Field(min_length=1)
+
+
+@dataclass(frozen=True)
+class References:
+    """Map lines as predicted Hough points seen from one pose (one row per visible line).
+
+    ``theta``/``rho`` are the robot-frame Hough coordinates (ρ ≥ 0). ``beta`` is the world angle of
+    the normal pointing from the robot to the line, so that ∂ρ/∂(x, y) = −(cos β, sin β) and
+    ∂θ/∂θ_robot = −1. ``seg_*`` describe the candidate segments of those lines (for extent checks):
+    ``seg_ref`` indexes rows of this table, ``seg_s0``/``seg_s1`` are extents along the line's
+    direction ``(−sin β, cos β)`` in world metres.
+    """
+
+    line: NDArray[np.intp]
+    theta: NDArray[np.float64]
+    rho: NDArray[np.float64]
+    beta: NDArray[np.float64]
+    seg_ref: NDArray[np.intp]
+    seg_s0: NDArray[np.float64]
+    seg_s1: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return len(self.line)
+
+
+class SegmentMap:
+    """Segments, their merged lines and a spatial index (cost per query independent of map size)."""
+
+    def __init__(
+        self,
+        starts: ArrayLike,
+        ends: ArrayLike,
+        kinds: list[str] | None = None,
+        ids: list[str] | None = None,
+        name: str = "unnamed",
+        collinear_angle_tol: float = math.radians(0.5),
+        collinear_dist_tol: float = 0.02,
+        index_spacing: float = 1.0,
+    ) -> None:
+        self.name = name
+        self.starts = np.asarray(starts, dtype=float).reshape(-1, 2)
+        self.ends = np.asarray(ends, dtype=float).reshape(-1, 2)
+        n = len(self.starts)
+        if n == 0 or len(self.ends) != n:
+            raise MapError(f"map {name!r}: needs at least one segment with a start and an end")
+        self.kinds = np.asarray(kinds if kinds is not None else ["wall"] * n)
+        self.ids = list(ids) if ids is not None else [f"s{i}" for i in range(n)]
+        self.is_wall = self.kinds == "wall"
+        lengths = np.linalg.norm(self.ends - self.starts, axis=1)
+        if np.any(lengths < 1e-6):
+            bad = int(np.argmax(lengths < 1e-6))
+            raise MapError(f"map {name!r}: segment {self.ids[bad]!r} has zero length")
+        self.lengths = lengths
+        self._merge_collinear(collinear_angle_tol, collinear_dist_tol)
+        self._build_index(index_spacing)
+
+    # ---------------------------------------------------------------- construction
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> SegmentMap:
+        """Load a map YAML (DESIGN §6); raise :class:`MapError` naming the file, entry and problem."""
+        path = Path(path)
+        try:
+            raw = yaml.safe_load(path.read_text())
+        except FileNotFoundError:
+            raise MapError(f"map {path}: file not found") from None
+        except (OSError, UnicodeDecodeError) as exc:
+            raise MapError(f"map {path}: cannot read ({exc})") from None
+        except yaml.YAMLError as exc:
+            raise MapError(f"map {path}: not valid YAML ({exc})") from None
+        if raw is None:
+            raise MapError(f"map {path}: the file is empty")
+        if not isinstance(raw, dict):
+            raise MapError(f"map {path}: expected a mapping with 'segments', got {type(raw).__name__}")
+        return cls.from_dict(raw, source=str(path))
+
+    @classmethod
+    def from_dict(cls, raw: dict, source: str = "<dict>") -> SegmentMap:
+        try:
+            spec = _MapFile.model_validate(raw)
+        except ValidationError as exc:
+            raise MapError(f"map {source}: {_describe(exc, raw)}") from None
+        ids = [s.id if s.id is not None else f"s{i}" for i, s in enumerate(spec.segments)]
+        seen: dict[str, int] = {}
+        for i, sid in enumerate(ids):
+            if sid in seen:
+                raise MapError(f"map {source}: segment #{i} (id {sid!r}): duplicate id")
+            seen[sid] = i
+        starts = [s.start for s in spec.segments]
+        ends = [s.end for s in spec.segments]
+        for i, (a, b) in enumerate(zip(starts, ends, strict=True)):
+            if math.dist(a, b) < 1e-6:
+                raise MapError(f"map {source}: segment #{i} (id {ids[i]!r}): 'from' equals 'to'")
+        kinds = [s.kind for s in spec.segments]
+        return cls(starts, ends, kinds=kinds, ids=ids, name=spec.name)
+
+    def to_dict(self) -> dict:
+        segs = [
+            {"id": i, "kind": str(k), "from": [float(a[0]), float(a[1])],
+             "to": [float(b[0]), float(b[1])]}
+            for i, k, a, b in zip(self.ids, self.kinds, self.starts, self.ends, strict=True)
+        ]
+        return {"name": self.name, "frame": "map", "units": "m", "segments": segs}
+
+    def to_yaml(self, path: str | Path) -> None:
+        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False, width=120))
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    # ---------------------------------------------------------------- lines
+    def _merge_collinear(self, angle_tol: float, dist_tol: float) -> None:
+        """Group segments on one infinite line; canonical form α ∈ [0, π), r signed."""
+        d = (self.ends - self.starts) / self.lengths[:, None]
+        alpha = np.arctan2(d[:, 0], -d[:, 1])  # normal (−d_y, d_x) rotated: atan2(n_y, n_x)
+        r = self.starts[:, 0] * np.cos(alpha) + self.starts[:, 1] * np.sin(alpha)
+        flip = (alpha < 0) | (alpha >= np.pi)
+        alpha = np.where(flip, np.mod(alpha, TWO_PI) - np.pi, alpha)
+        alpha = np.where(alpha < 0, alpha + np.pi, alpha)
+        r = np.where(flip, -r, r)
+        # Hash (α, r) on a grid of the tolerances; a segment joins a line found in a neighbour cell.
+        buckets: dict[tuple[int, int], list[int]] = {}
+        line_alpha: list[float] = []
+        line_r: list[float] = []
+        line_of = np.empty(len(alpha), dtype=np.intp)
+        n_a = max(1, round(np.pi / angle_tol))
+        for i, (a, ri) in enumerate(zip(alpha, r, strict=True)):
+            ka, kr = int(a / angle_tol), int(math.floor(ri / dist_tol))
+            found = -1
+            for da in (-1, 0, 1):
+                for dr in (-1, 0, 1):
+                    wrapped = (ka + da) % n_a != ka + da  # across α = 0 ≡ π the sign of r flips
+                    key = ((ka + da) % n_a, (-kr - 1 - dr) if wrapped else kr + dr)
+                    for j in buckets.get(key, ()):
+                        da_ = abs(line_alpha[j] - a)
+                        same = da_ < angle_tol and abs(line_r[j] - ri) < dist_tol
+                        opposite = np.pi - da_ < angle_tol and abs(line_r[j] + ri) < dist_tol
+                        if same or opposite:
+                            found = j
+                            break
+                    if found >= 0:
+                        break
+                if found >= 0:
+                    break
+            if found < 0:
+                found = len(line_alpha)
+                line_alpha.append(float(a))
+                line_r.append(float(ri))
+                buckets.setdefault((ka, kr), []).append(found)
+            line_of[i] = found
+        self.line_alpha = np.asarray(line_alpha)
+        self.line_r = np.asarray(line_r)
+        self.line_of_segment = line_of
+        t = np.column_stack((-np.sin(self.line_alpha), np.cos(self.line_alpha)))[line_of]
+        s_a = np.einsum("ij,ij->i", self.starts, t)
+        s_b = np.einsum("ij,ij->i", self.ends, t)
+        self.seg_s0 = np.minimum(s_a, s_b)  # extent along the line's canonical direction
+        self.seg_s1 = np.maximum(s_a, s_b)
+
+    @property
+    def n_lines(self) -> int:
+        return len(self.line_alpha)
+
+    # ---------------------------------------------------------------- spatial index
+    def _build_index(self, spacing: float) -> None:
+        n_samples = np.maximum(2, np.ceil(self.lengths / spacing).astype(int) + 1)
+        seg = np.repeat(np.arange(len(self)), n_samples)
+        offsets = np.concatenate([np.linspace(0.0, 1.0, k) for k in n_samples])
+        pts = self.starts[seg] + offsets[:, None] * (self.ends - self.starts)[seg]
+        self._index_spacing = spacing
+        self._sample_segment = seg
+        self._tree = cKDTree(pts)
+
+    def segments_near(self, center: ArrayLike, radius: float) -> NDArray[np.intp]:
+        """Indices of segments with any part within ``radius`` (approximately) of ``center``."""
+        hits = self._tree.query_ball_point(np.asarray(center, dtype=float)[:2],
+                                           radius + self._index_spacing)
+        return np.unique(self._sample_segment[np.asarray(hits, dtype=np.intp)])
+
+    # ---------------------------------------------------------------- references
+    def references(
+        self,
+        pose: ArrayLike,
+        max_range: float,
+        kinds: tuple[str, ...] = ("wall",),
+        n_rays: int = 360,
+    ) -> References:
+        """Predicted Hough points of the lines visible from ``pose`` (DESIGN §3.4).
+
+        Walls are kept if a ray from the pose hits them first (walls occlude, painted lines do
+        not); painted lines are kept if they come within range.
+        """
+        x, y, th = (float(v) for v in pose)
+        cand = self.segments_near((x, y), max_range)
+        cand = cand[np.isin(self.kinds[cand], kinds)]
+        if len(cand) == 0:
+            return _empty_references()
+        walls = cand[self.is_wall[cand]]
+        visible_walls = self._first_hits((x, y), walls, max_range, n_rays) if len(walls) else walls
+        painted = cand[~self.is_wall[cand]]
+        segs = np.concatenate((visible_walls, painted))
+        if len(segs) == 0:
+            return _empty_references()
+        lines, seg_ref = np.unique(self.line_of_segment[segs], return_inverse=True)
+        alpha, r = self.line_alpha[lines], self.line_r[lines]
+        rho = r - (x * np.cos(alpha) + y * np.sin(alpha))
+        flipped = rho < 0
+        beta = np.where(flipped, alpha + np.pi, alpha)
+        rho = np.abs(rho)
+        theta = np.mod(beta - th, TWO_PI)
+        sign = np.where(flipped, -1.0, 1.0)[seg_ref]  # direction (−sin β, cos β) flips with β
+        s0, s1 = self.seg_s0[segs] * sign, self.seg_s1[segs] * sign
+        return References(lines, theta, rho, np.mod(beta, TWO_PI), seg_ref,
+                          np.minimum(s0, s1), np.maximum(s0, s1))
+
+    def _first_hits(self, origin: tuple[float, float], segs: NDArray[np.intp], max_range: float,
+                    n_rays: int) -> NDArray[np.intp]:
+        """Segments that are the first wall hit by at least one of ``n_rays`` rays."""
+        phi = np.linspace(0.0, TWO_PI, n_rays, endpoint=False)
+        d = np.column_stack((np.cos(phi), np.sin(phi)))  # R×2
+        p0 = self.starts[segs] - origin  # S×2
+        e = self.ends[segs] - self.starts[segs]
+        # origin + t·d = p0 + u·e  →  solve with 2-D cross products (Cramer's rule)
+        denom = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]  # R×S
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]) / denom
+            u = (p0[:, 0] * d[:, 1:] - p0[:, 1] * d[:, :1]) / denom
+        hit = (np.abs(denom) > 1e-12) & (t > 1e-9) & (t <= max_range) & (u >= 0) & (u <= 1)
+        t = np.where(hit, t, np.inf)
+        first = np.argmin(t, axis=1)
+        seen = np.isfinite(t[np.arange(n_rays), first])
+        return segs[np.unique(first[seen])]
+
+
+def _empty_references() -> References:
+    e = np.empty(0)
+    i = np.empty(0, dtype=np.intp)
+    return References(i, e, e, e, i, e, e)
+
+
+def _describe(exc: ValidationError, raw: dict) -> str:
+    """Turn the first pydantic error into 'segment #i (id 'x'): field: problem'."""
+    err = exc.errors()[0]
+    loc = list(err["loc"])
+    where = ""
+    if len(loc) >= 2 and loc[0] == "segments" and isinstance(loc[1], int):
+        i = loc[1]
+        seg = raw.get("segments", [None] * (i + 1))[i]
+        sid = seg.get("id") if isinstance(seg, dict) else None
+        where = f"segment #{i}" + (f" (id {sid!r})" if sid is not None else "") + ": "
+        loc = loc[2:]
+    field = ".".join(str(p) for p in loc if not isinstance(p, int)) or "entry"
+    field = {"start": "from", "end": "to"}.get(field, field)
+    msg = err["msg"]
+    if err["type"] == "missing":
+        msg = "is missing"
+    elif err["type"] == "too_short" and field == "segments":
+        msg = "the map has no segments"
+    return f"{where}{field!r} {msg}" if msg == "is missing" else f"{where}{field}: {msg}"
