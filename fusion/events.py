@@ -1,0 +1,83 @@
+"""Time-stamped inputs of the localizer: what readers and the simulator produce.
+
+Times are float seconds of the data's own clock. Odometry poses are in the odometry's own
+(arbitrary) frame; scans and point sets are in the robot (``base``) frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass(frozen=True, slots=True)
+class Odometry:
+    """A wheel-odometry pose (x, y, θ) in the odometry frame at time ``t``."""
+
+    t: float
+    x: float
+    y: float
+    theta: float
+
+
+@dataclass(frozen=True, slots=True)
+class Scan:
+    """A range scan: ``ranges[i]`` along ``angles[i]`` (robot frame, radians).
+
+    ``max_range``: returns at or beyond it mean "no return". ``reference``: the pose a corrected
+    log attached to this scan (map frame), for evaluation only — never an input to the filter.
+    ``line``: the record's line number in its file, for messages.
+    """
+
+    t: float
+    ranges: NDArray[np.float64]
+    angles: NDArray[np.float64]
+    max_range: float = np.inf
+    sensor: str = "laser"
+    reference: tuple[float, float, float] | None = None
+    line: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class PointSet:
+    """Points already triangulated into the robot frame (e.g. a camera's floor lines).
+
+    ``t`` is when the data was taken; ``arrival`` is when it reached the localizer (≥ t) — late
+    measurements are applied at ``t`` by the filter's history.
+    """
+
+    t: float
+    points: NDArray[np.float64]
+    sensor: str = "camera"
+    arrival: float | None = None
+    line: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Truth:
+    """Ground-truth pose (map frame), known in simulation."""
+
+    t: float
+    x: float
+    y: float
+    theta: float
+
+
+Event = Odometry | Scan | PointSet | Truth
+
+
+@dataclass
+class ReadStats:
+    """What a reader saw and skipped, for warnings and ``metrics.json``."""
+
+    records: int = 0
+    skipped: int = 0
+    backwards_timestamps: int = 0
+    warnings: list[str] = field(default_factory=list)
+
+    def warn(self, message: str, keep: int = 50) -> None:
+        self.skipped += 1
+        if len(self.warnings) < keep:
+            self.warnings.append(message)
