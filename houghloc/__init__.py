@@ -1,0 +1,15 @@
+"""houghloc: self-localization by the Hough transform (Iocchi & Nardi), as pure NumPy functions.
+
+    from houghloc import SegmentMap, HoughConfig, localize_scan
+    m = SegmentMap.from_yaml("configs/maps/robocup.yaml")
+    c = localize_scan(points_xy, m, guess=(x, y, theta), config=HoughConfig())
+    c.pose, c.delta, c.cov, c.rank, c.matches
+"""
+
+from houghloc.config import HoughConfig
+from houghloc.localize import ScanCorrection, localize_scan, observe_lines
+from houghloc.segment_map import MapError, References, SegmentMap
+
+__all__ = ["HoughConfig", "MapError", "References", "ScanCorrection", "SegmentMap",
+           "localize_scan", "observe_lines"]
+__version__ = "0.1.0"

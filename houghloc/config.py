@@ -1,0 +1,64 @@
+"""Settings of the Hough method, validated with pydantic (units in the names; radians inside)."""
+
+from __future__ import annotations
+
+import math
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class HoughConfig(BaseModel):
+    """Grid, peaks, refinement and matching settings. Defaults: the paper's 3° × 10 cm grid.
+
+    The grid only needs to separate lines (DESIGN §3.2); precision comes from the refinement.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # --- grid and voting (§3.2)
+    theta_step_deg: float = Field(3.0, gt=0.0, le=45.0)
+    rho_step: float = Field(0.10, gt=0.0, description="m")
+    rho_max: float = Field(20.0, gt=0.0, description="m; votes beyond are dropped")
+    # Lines through the sensor (ρ ≈ 0) vote on both sides of the θ ↔ θ+π identity: keep a few
+    # negative-ρ cells so that neither half loses the votes that noise pushes below zero.
+    rho_margin_cells: int = Field(2, ge=0, le=10)
+    # --- peaks
+    peak_fraction: float = Field(0.04, gt=0.0, lt=1.0, description="of the points")
+    peak_min_votes: int = Field(8, ge=2)
+    nms_theta_cells: int = Field(2, ge=1, description="half-width of the suppression window")
+    nms_rho_cells: int = Field(2, ge=1)
+    max_peaks: int = Field(16, ge=1)
+    # --- refinement (§3.3)
+    refine: bool = True
+    refine_iterations: int = Field(3, ge=1)
+    refine_band_sigmas: float = Field(4.0, gt=0.0)
+    refine_min_band: float = Field(0.03, gt=0.0, description="m")
+    piece_gap: float = Field(1.0, gt=0.0, description="m; a larger gap splits a line into pieces")
+    min_piece_points: int = Field(5, ge=2)
+    min_line_length: float = Field(0.4, ge=0.0, description="m; shorter pieces are not lines")
+    max_line_sigma: float = Field(0.05, gt=0.0, description="m; rougher fits are not lines")
+    point_sigma_floor: float = Field(0.003, gt=0.0, description="m; floor on the fitted σ")
+    # --- map references (§3.4)
+    max_range: float | None = Field(None, gt=0.0, description="m; None: from the points")
+    reference_kinds: tuple[str, ...] = ("wall",)
+    visibility_rays: int = Field(360, ge=8)
+    # --- correspondence and displacement (§3.5)
+    guess_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior when no covariance given")
+    guess_sigma_theta_deg: float = Field(5.0, gt=0.0)
+    gate_probability: float = Field(0.999, gt=0.5, lt=1.0)
+    extent_margin: float = Field(0.1, ge=0.0, description="m of slack on segment extents")
+    min_extent_coverage: float = Field(
+        0.6, gt=0.0, le=1.0, description="fraction of an observed piece that must lie on segments"
+    )
+    match_iterations: int = Field(2, ge=1, description="re-match at the corrected pose")
+    max_observable_sigma: float = Field(
+        0.5, gt=0.0, description="m; a direction known worse than this is reported unobservable"
+    )
+
+    @property
+    def theta_step(self) -> float:
+        return math.radians(self.theta_step_deg)
+
+    @property
+    def guess_sigma_theta(self) -> float:
+        return math.radians(self.guess_sigma_theta_deg)

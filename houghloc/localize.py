@@ -1,0 +1,221 @@
+"""One scan to one pose correction: the paper's five steps, then the refinement of §3.3.
+
+    points ─▶ vote ─▶ peaks ─▶ refine ─▶ associate with the map ─▶ displacement ─▶ pose
+
+This is where a scan becomes a pose. Everything here is a pure function of its arguments.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from houghloc.config import HoughConfig
+from houghloc.displacement import UNOBSERVED_VARIANCE, Displacement, estimate_displacement
+from houghloc.geometry import TWO_PI, wrap_angle
+from houghloc.matching import Matches, associate, gate_threshold
+from houghloc.peaks import find_peaks
+from houghloc.refine import Lines, refine_lines
+from houghloc.segment_map import References, SegmentMap
+from houghloc.transform import HoughGrid, make_grid, vote
+
+_DEFAULT_CONFIG = HoughConfig()
+
+
+@dataclass
+class ScanCorrection:
+    """The result of :func:`localize_scan`.
+
+    ``pose`` = guess + ``delta`` (map frame, θ wrapped); ``cov`` its covariance from the matches
+    alone (the guess's own uncertainty is not folded in: a filter does that), with
+    ``UNOBSERVED_VARIANCE`` along the ``unobservable`` directions; ``rank`` the number of
+    observable directions (3: full pose; 2: a corridor; 0: nothing matched). ``ambiguous`` and
+    ``reason`` say why the result should not be trusted, or why it is empty. The intermediate
+    stages (accumulator, observed lines, references, matches) are kept for inspection.
+    """
+
+    guess: NDArray[np.float64]
+    pose: NDArray[np.float64]
+    delta: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    information: NDArray[np.float64]
+    rank: int
+    observable: NDArray[np.float64]
+    unobservable: NDArray[np.float64]
+    matches: Matches | None
+    ambiguous: bool
+    reason: str
+    n_points: int = 0
+    grid: HoughGrid | None = None
+    accumulator: NDArray[np.int32] | None = None
+    lines: Lines | None = None
+    references: References | None = None
+    matched_map_lines: NDArray[np.intp] = field(default_factory=lambda: np.empty(0, np.intp))
+
+    @property
+    def ok(self) -> bool:
+        """A full, unambiguous pose fix."""
+        return self.rank == 3 and not self.ambiguous
+
+
+def _empty(guess: NDArray, reason: str, **stages) -> ScanCorrection:
+    return ScanCorrection(guess, guess.copy(), np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE,
+                          np.zeros((3, 3)), 0, np.zeros((3, 0)), np.eye(3), None, False, reason,
+                          **stages)
+
+
+def clean_points(points_xy: ArrayLike) -> tuple[NDArray[np.float64], int]:
+    """Finite points as an N×2 float array, and how many were dropped."""
+    pts = np.asarray(points_xy, dtype=float)
+    if pts.size == 0:
+        return np.empty((0, 2)), 0
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"points must be an N×2 array of (x, y), got shape {pts.shape}")
+    finite = np.isfinite(pts).all(axis=1)
+    return (pts if finite.all() else pts[finite]), int((~finite).sum())
+
+
+def observe_lines(points: NDArray[np.float64], config: HoughConfig
+                  ) -> tuple[HoughGrid, NDArray[np.int32], Lines]:
+    """Steps 2–3 and §3.3: vote, find peaks, refine them to lines (strongest first)."""
+    grid = make_grid(config)
+    acc = vote(points, grid)
+    peaks = find_peaks(acc, len(points), config, limit=2 * config.max_peaks)
+    theta0, rho0 = grid.cell_center(peaks.i_theta, peaks.i_rho)
+    if config.refine:
+        lines = refine_lines(points, theta0, rho0, config)
+    else:
+        lines = _grid_lines(points, theta0, rho0, peaks.votes, grid)
+    if len(lines) > config.max_peaks:
+        lines = lines.subset(np.argsort(-lines.n, kind="stable")[: config.max_peaks])
+    return grid, acc, lines
+
+
+def localize_scan(
+    points_xy: ArrayLike,
+    map: SegmentMap,  # noqa: A002 — the name the API documents
+    guess: ArrayLike,
+    config: HoughConfig = _DEFAULT_CONFIG,
+    pose_cov: ArrayLike | None = None,
+) -> ScanCorrection:
+    """Correct ``guess`` (x, y, θ) with the robot-frame points of one scan (DESIGN §3, §6).
+
+    ``pose_cov`` is the guess's covariance (e.g. the filter's); it sets the matching gates.
+    Without it the guess is assumed good to ``guess_sigma_xy`` and ``guess_sigma_theta_deg``.
+    Bad input never raises on content: empty, non-finite or structureless scans give an empty
+    result with a reason. A wrongly shaped array or a non-finite guess raises ``ValueError``.
+    """
+    guess = np.asarray(guess, dtype=float).reshape(-1)
+    if guess.shape != (3,) or not np.isfinite(guess).all():
+        raise ValueError(f"guess must be three finite numbers (x, y, θ), got {guess!r}")
+    guess = np.array([guess[0], guess[1], float(wrap_angle(guess[2]))])
+    points, n_dropped = clean_points(points_xy)
+    dropped = f" ({n_dropped} non-finite dropped)" if n_dropped else ""
+    if len(points) < config.peak_min_votes:
+        return _empty(guess, f"too few points: {len(points)}{dropped}", n_points=len(points))
+
+    grid, acc, lines = observe_lines(points, config)
+    stages = {"n_points": len(points), "grid": grid, "accumulator": acc, "lines": lines}
+    if len(lines) == 0:
+        return _empty(guess, f"no line in the scan{dropped}", **stages)
+    max_range = config.max_range or float(np.sqrt((points**2).sum(axis=1).max())) + 0.5
+    refs = map.references(guess, max_range, config.reference_kinds, config.visibility_rays)
+    stages["references"] = refs
+    if len(refs) == 0:
+        return _empty(guess, "no map line within range of the guess", **stages)
+
+    prior = (np.asarray(pose_cov, dtype=float) if pose_cov is not None else
+             np.diag([config.guess_sigma_xy**2] * 2 + [config.guess_sigma_theta**2]))
+    if prior.shape != (3, 3) or not np.isfinite(prior).all():
+        raise ValueError("pose_cov must be a finite 3×3 matrix")
+    pose, cov, offset = guess, prior, np.zeros(3)
+    for _ in range(config.match_iterations):
+        matches = associate(lines, shift_references(refs, offset), pose, cov, config)
+        disp = estimate_displacement(matches, _beta(refs, offset)[matches.ref],
+                                     config.max_observable_sigma)
+        if disp.rank == 0:
+            break
+        offset = offset + disp.delta
+        pose = _apply(guess, offset)
+        # re-match with the prior sharpened by this scan's information (the gates shrink)
+        cov = np.linalg.inv(np.linalg.inv(prior) + disp.information)
+    if len(matches) == 0:
+        reason = "; ".join(matches.reasons) or "no observed line matches the map"
+        return _empty(guess, reason, **stages) if not matches.reasons else _flagged(
+            guess, reason, matches, stages)
+
+    reasons = list(matches.reasons)
+    if disp.dof > 0 and disp.chi2 > gate_threshold(config.gate_probability, disp.dof):
+        reasons.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
+    step = disp.observable.T @ np.array([offset[0], offset[1], wrap_angle(offset[2])])
+    prior_obs = disp.observable.T @ prior @ disp.observable
+    if step @ np.linalg.solve(prior_obs, step) > gate_threshold(config.gate_probability,
+                                                                disp.rank):
+        reasons.append("correction far outside the guess's uncertainty")
+    if disp.rank < 3:
+        reasons.insert(0, f"rank {disp.rank}: unobservable along "
+                       + ", ".join(_direction_name(v) for v in disp.unobservable.T))
+    return ScanCorrection(
+        guess, pose, _wrapped(offset), disp.cov, disp.information, disp.rank, disp.observable,
+        disp.unobservable, matches, bool(len(matches.ambiguous_lines)) or len(reasons) > (
+            disp.rank < 3), "; ".join(reasons), matched_map_lines=refs.line[matches.ref],
+        references=refs, **{k: v for k, v in stages.items() if k != "references"})
+
+
+def _flagged(guess: NDArray, reason: str, matches: Matches, stages: dict) -> ScanCorrection:
+    out = _empty(guess, reason, **stages)
+    out.matches = matches
+    out.ambiguous = True
+    return out
+
+
+def _apply(guess: NDArray, offset: NDArray) -> NDArray:
+    return np.array([guess[0] + offset[0], guess[1] + offset[1],
+                     float(wrap_angle(guess[2] + offset[2]))])
+
+
+def _wrapped(offset: NDArray) -> NDArray:
+    return np.array([offset[0], offset[1], float(wrap_angle(offset[2]))])
+
+
+def _beta(refs: References, offset: NDArray) -> NDArray:
+    """World normal angles after moving the pose by ``offset`` (a line may change side)."""
+    rho = refs.rho - (offset[0] * np.cos(refs.beta) + offset[1] * np.sin(refs.beta))
+    return np.where(rho < 0, (refs.beta + np.pi) % TWO_PI, refs.beta)
+
+
+def shift_references(refs: References, offset: NDArray) -> References:
+    """References seen from guess + offset: θ_r − Δθ and ρ_r − n_β·Δt, exact for lines."""
+    if not offset.any():
+        return refs
+    rho = refs.rho - (offset[0] * np.cos(refs.beta) + offset[1] * np.sin(refs.beta))
+    flip = rho < 0
+    beta = np.where(flip, (refs.beta + np.pi) % TWO_PI, refs.beta)
+    theta = np.where(flip, refs.theta + np.pi, refs.theta) - offset[2]
+    sign = np.where(flip, -1.0, 1.0)[refs.seg_ref]
+    s0, s1 = refs.seg_s0 * sign, refs.seg_s1 * sign
+    return References(refs.line, theta % TWO_PI, np.abs(rho), beta, refs.seg_ref,
+                      np.minimum(s0, s1), np.maximum(s0, s1))
+
+
+def _direction_name(v: NDArray) -> str:
+    return f"({v[0]:+.2f}, {v[1]:+.2f}) in x, y"
+
+
+def _grid_lines(points: NDArray, theta: NDArray, rho: NDArray, votes: NDArray,
+                grid: HoughGrid) -> Lines:
+    """Peaks as lines at their cell centres with the grid's uniform-quantisation covariance
+    (δ²/12): the paper's precision, for comparison with the refinement."""
+    k = len(theta)
+    cov = np.zeros((k, 2, 2))
+    cov[:, 0, 0] = grid.theta_step**2 / 12.0
+    cov[:, 1, 1] = grid.rho_step**2 / 12.0
+    normal = np.vstack((np.cos(theta), np.sin(theta)))
+    members = np.abs(points @ normal - rho) <= grid.rho_step
+    along = points @ np.vstack((-normal[1], normal[0]))
+    s0 = np.where(members, along, np.inf).min(axis=0)
+    s1 = np.where(members, along, -np.inf).max(axis=0)
+    return Lines(theta % TWO_PI, rho, cov, votes.astype(np.int64), np.full(k, grid.rho_step),
+                 np.where(np.isfinite(s0), s0, 0.0), np.where(np.isfinite(s1), s1, 0.0), members)

@@ -1,0 +1,161 @@
+"""Refinement of Hough peaks to continuous lines (DESIGN §3.3).
+
+The grid bounds the paper's precision (3°, 10 cm). Each peak's inlier points — those within a band
+of its line — are fitted by total least squares, the band is narrowed to the fit's own scatter, and
+the points are split into contiguous pieces along the line; pieces too small or too short are
+dropped (a robot's arc, a lone return). All peaks are processed together as N×K matrices.
+
+Covariance of a fitted line (normal angle θ, offset ρ), with σ² the residual variance, N inliers,
+sᵢ their coordinates along the line and s̄ their mean:
+    var θ = σ² / Σ(sᵢ − s̄)²,    var(offset at the centroid) = σ² / N,
+    ρ = c·n(θ)  ⇒  ∂ρ/∂θ = c·t = s̄,  so  C = [[vθ, s̄ vθ], [s̄ vθ, σ²/N + s̄² vθ]].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from houghloc.config import HoughConfig
+from houghloc.geometry import TWO_PI
+
+
+@dataclass(frozen=True)
+class Lines:
+    """Observed lines in the robot frame (ρ ≥ 0 except within noise of 0), one row each.
+
+    ``cov`` is K×2×2 over (θ, ρ). ``s0``/``s1`` bound the observed points along the direction
+    (−sin θ, cos θ). ``members`` is the N×K inlier mask (for colouring points by line).
+    """
+
+    theta: NDArray[np.float64]
+    rho: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    n: NDArray[np.int64]
+    sigma: NDArray[np.float64]
+    s0: NDArray[np.float64]
+    s1: NDArray[np.float64]
+    members: NDArray[np.bool_]
+
+    def __len__(self) -> int:
+        return len(self.theta)
+
+    def subset(self, keep: NDArray) -> Lines:
+        return Lines(self.theta[keep], self.rho[keep], self.cov[keep], self.n[keep],
+                     self.sigma[keep], self.s0[keep], self.s1[keep], self.members[:, keep])
+
+
+def _moments(points: NDArray) -> NDArray:
+    """Per-point monomials [1, x, y, x², xy, y²]: one product with a mask gives all line sums."""
+    x, y = points[:, 0], points[:, 1]
+    return np.column_stack((np.ones(len(points)), x, y, x * x, x * y, y * y))
+
+
+def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
+    """Total-least-squares lines through the masked points of each column.
+
+    The scatter matrix comes from the masked sums (Mᵀ·[1, x, y, x², xy, y²]); the normal is the
+    eigenvector of its smallest eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, residual variance σ²,
+    count N, centroid c (K×2), and the variance along the line (spread of the points).
+    """
+    sums = mask.T.astype(np.float64) @ monomials  # K×6
+    n = sums[:, 0]
+    safe = np.maximum(n, 1.0)
+    cx, cy = sums[:, 1] / safe, sums[:, 2] / safe
+    sxx = sums[:, 3] / safe - cx * cx
+    sxy = sums[:, 4] / safe - cx * cy
+    syy = sums[:, 5] / safe - cy * cy
+    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy) + 0.5 * np.pi  # normal ⊥ principal axis
+    root = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
+    lam_min = np.maximum(0.5 * (sxx + syy) - root, 0.0)
+    lam_max = 0.5 * (sxx + syy) + root
+    rho = cx * np.cos(theta) + cy * np.sin(theta)
+    theta = np.where(rho < 0, theta + np.pi, theta) % TWO_PI
+    var = lam_min * n / np.maximum(n - 2.0, 1.0)
+    return theta, np.abs(rho), var, n, np.column_stack((cx, cy)), lam_max
+
+
+def _split_pieces(s: NDArray, mask: NDArray, config: HoughConfig) -> NDArray[np.bool_]:
+    """Keep only points in contiguous pieces with enough points and length (all columns at once).
+
+    Along-line coordinates are sorted per column (non-members pushed to +inf, so members form a
+    prefix); a gap larger than ``piece_gap`` starts a new piece. Working on the column-major
+    flattening, pieces are runs: their sizes come from a bincount, their ends from the run bounds.
+    """
+    order = np.argsort(np.where(mask, s, np.inf), axis=0)
+    s_sorted = np.take_along_axis(s, order, axis=0).T  # K×N, members first in each row
+    valid = np.take_along_axis(mask, order, axis=0).T
+    gap = np.zeros_like(valid)
+    gap[:, 1:] = (s_sorted[:, 1:] - s_sorted[:, :-1]) > config.piece_gap
+    start = valid & gap
+    start[:, 0] = valid[:, 0]
+    flat_start, flat_valid, flat_s = start.ravel(), valid.ravel(), s_sorted.ravel()
+    piece = np.cumsum(flat_start) - 1  # run id of every entry (meaningful where valid)
+    ids = piece[flat_valid]
+    size = np.bincount(ids, minlength=int(flat_start.sum()))
+    first = np.flatnonzero(flat_start)
+    last = first + size - 1
+    length = flat_s[last] - flat_s[first]
+    good = (size >= config.min_piece_points) & (length >= config.min_line_length)
+    keep_sorted = np.zeros_like(flat_valid)
+    keep_sorted[flat_valid] = good[ids]
+    keep = np.zeros_like(mask)
+    np.put_along_axis(keep, order, keep_sorted.reshape(valid.shape).T, axis=0)
+    return keep
+
+
+def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
+                 config: HoughConfig) -> Lines:
+    """Refine peaks (θ₀, ρ₀) to TLS lines with covariances; drop those that are not lines."""
+    monomials = _moments(points)
+    band = config.rho_step  # first pass: one cell either side of the peak
+    theta, rho = np.asarray(theta0, float), np.asarray(rho0, float)
+    mask = np.zeros((len(points), len(theta)), dtype=bool)
+    for it in range(config.refine_iterations):
+        normal = np.vstack((np.cos(theta), np.sin(theta)))
+        mask = np.abs(points @ normal - rho) <= band  # inliers: |p·n − ρ| within the band
+        if it == config.refine_iterations - 1:
+            mask = _split_pieces(points @ np.vstack((-normal[1], normal[0])), mask, config)
+        theta, rho, var, n, c, spread_var = _tls(monomials, mask)
+        band = np.clip(config.refine_band_sigmas * np.sqrt(var), config.refine_min_band,
+                       config.rho_step)
+    sigma = np.sqrt(var)
+    t = np.vstack((-np.sin(theta), np.cos(theta)))
+    along = points @ t  # N×K
+    s_bar = c[:, 0] * t[0] + c[:, 1] * t[1]
+    s0 = np.where(mask, along, np.inf).min(axis=0)
+    s1 = np.where(mask, along, -np.inf).max(axis=0)
+    ok = (n >= config.min_piece_points) & (sigma <= config.max_line_sigma) & (
+        s1 - s0 >= config.min_line_length)
+    var_eff = np.maximum(var, config.point_sigma_floor**2)
+    v_theta = var_eff / np.maximum(spread_var * n, 1e-12)  # σ² / Σ(sᵢ − s̄)²
+    v_off = var_eff / np.maximum(n, 1.0)  # σ² / N
+    cov = np.empty((len(theta), 2, 2))
+    cov[:, 0, 0] = v_theta
+    cov[:, 0, 1] = cov[:, 1, 0] = s_bar * v_theta
+    cov[:, 1, 1] = v_off + s_bar**2 * v_theta
+    lines = Lines(theta, rho, cov, n.astype(np.int64), sigma, s0, s1, mask)
+    return _deduplicate(lines.subset(ok), config)
+
+
+def _deduplicate(lines: Lines, config: HoughConfig) -> Lines:
+    """Merge peaks that refined to the same line (plateaus, θ ↔ θ+π twins near ρ = 0).
+
+    Two lines are the same when they differ by less than one grid cell in both θ and ρ, in either
+    representation of the identity (θ, ρ) ≡ (θ + π, −ρ). The one with more inliers is kept.
+    """
+    k = len(lines)
+    if k < 2:
+        return lines
+    dth = np.abs((lines.theta[:, None] - lines.theta[None, :] + np.pi) % TWO_PI - np.pi)
+    drho = np.abs(lines.rho[:, None] - lines.rho[None, :])
+    same = (dth < config.theta_step) & (drho < config.rho_step)
+    dth_flip = np.abs((lines.theta[:, None] - lines.theta[None, :]) % TWO_PI - np.pi)
+    same |= (dth_flip < config.theta_step) & (lines.rho[:, None] + lines.rho[None, :] <
+                                              config.rho_step)
+    stronger = (lines.n[None, :] > lines.n[:, None]) | (
+        (lines.n[None, :] == lines.n[:, None]) & (np.arange(k)[None, :] < np.arange(k)[:, None]))
+    dominated = (same & stronger).any(axis=1)
+    return lines.subset(~dominated)
