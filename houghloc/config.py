@@ -30,7 +30,7 @@ class HoughConfig(BaseModel):
     max_peaks: int = Field(16, ge=1)
     # --- refinement (§3.3)
     refine: bool = True
-    refine_iterations: int = Field(3, ge=1)
+    refine_iterations: int = Field(2, ge=1)
     refine_band_sigmas: float = Field(4.0, gt=0.0)
     refine_min_band: float = Field(0.03, gt=0.0, description="m")
     piece_gap: float = Field(1.0, gt=0.0, description="m; a larger gap splits a line into pieces")
@@ -38,10 +38,12 @@ class HoughConfig(BaseModel):
     min_line_length: float = Field(0.4, ge=0.0, description="m; shorter pieces are not lines")
     max_line_sigma: float = Field(0.05, gt=0.0, description="m; rougher fits are not lines")
     point_sigma_floor: float = Field(0.003, gt=0.0, description="m; floor on the fitted σ")
+    line_theta_floor_deg: float = Field(0.01, ge=0.0, description="model error of a line's θ")
+    line_rho_floor: float = Field(0.0005, ge=0.0, description="m; model error of a line's ρ")
     # --- map references (§3.4)
     max_range: float | None = Field(None, gt=0.0, description="m; None: from the points")
     reference_kinds: tuple[str, ...] = ("wall",)
-    visibility_rays: int = Field(360, ge=8)
+    visibility_rays: int = Field(180, ge=8)
     # --- correspondence and displacement (§3.5)
     guess_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior when no covariance given")
     guess_sigma_theta_deg: float = Field(5.0, gt=0.0)
@@ -58,6 +60,10 @@ class HoughConfig(BaseModel):
     @property
     def theta_step(self) -> float:
         return math.radians(self.theta_step_deg)
+
+    @property
+    def line_theta_floor(self) -> float:
+        return math.radians(self.line_theta_floor_deg)
 
     @property
     def guess_sigma_theta(self) -> float:

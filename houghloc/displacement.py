@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from houghloc.matching import Matches, _inv2, hough_jacobians
+from houghloc.matching import Matches, hough_jacobians, inv2
 
 UNOBSERVED_VARIANCE = 1.0e6  # m² (or rad²): finite, so no NaN downstream, and plainly "unknown"
 
@@ -48,13 +48,14 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
                             z, np.eye(3), 0.0, 0)
     jac = hough_jacobians(beta)  # M×2×3
-    w, _ = _inv2(matches.cov)  # Cᵢ⁻¹
+    w = inv2(matches.cov)  # Cᵢ⁻¹
     jt_w = jac.transpose(0, 2, 1) @ w  # M×3×2
     info = (jt_w @ jac).sum(axis=0)  # Λ = Σ Jᵀ C⁻¹ J
     b = np.einsum("mij,mj->i", jt_w, matches.residual)  # Σ Jᵀ C⁻¹ r
     info = 0.5 * (info + info.T)
 
-    # Observable translation directions: eigen-decompose the Schur complement Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt.
+    # Observable translation directions: eigenvectors of the Schur complement
+    # Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out).
     basis = [np.array([0.0, 0.0, 1.0])]
     blind = []
     schur = info[:2, :2] - np.outer(info[:2, 2], info[2, :2]) / info[2, 2]

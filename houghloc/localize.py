@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from houghloc.config import HoughConfig
-from houghloc.displacement import UNOBSERVED_VARIANCE, Displacement, estimate_displacement
+from houghloc.displacement import UNOBSERVED_VARIANCE, estimate_displacement
 from houghloc.geometry import TWO_PI, wrap_angle
 from houghloc.matching import Matches, associate, gate_threshold
 from houghloc.peaks import find_peaks
@@ -95,7 +95,7 @@ def observe_lines(points: NDArray[np.float64], config: HoughConfig
 
 def localize_scan(
     points_xy: ArrayLike,
-    map: SegmentMap,  # noqa: A002 — the name the API documents
+    map: SegmentMap,
     guess: ArrayLike,
     config: HoughConfig = _DEFAULT_CONFIG,
     pose_cov: ArrayLike | None = None,
@@ -139,7 +139,10 @@ def localize_scan(
             break
         offset = offset + disp.delta
         pose = _apply(guess, offset)
-        # re-match with the prior sharpened by this scan's information (the gates shrink)
+        if len(matches.ambiguous_lines) == 0:
+            break  # nothing left to resolve: the estimate is linear, one solve is exact
+        # re-match with the prior sharpened by this scan's information: the gates shrink and
+        # lines that fitted two references may now fit one
         cov = np.linalg.inv(np.linalg.inv(prior) + disp.information)
     if len(matches) == 0:
         reason = "; ".join(matches.reasons) or "no observed line matches the map"

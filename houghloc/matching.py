@@ -54,12 +54,15 @@ def hough_jacobians(beta: NDArray[np.float64]) -> NDArray[np.float64]:
     return jac
 
 
-def _inv2(m: NDArray) -> tuple[NDArray, NDArray]:
-    """Inverses and determinants of a stack of 2×2 matrices."""
-    a, b, c, d = m[..., 0, 0], m[..., 0, 1], m[..., 1, 0], m[..., 1, 1]
-    det = a * d - b * c
-    inv = np.stack((np.stack((d, -b), -1), np.stack((-c, a), -1)), -2) / det[..., None, None]
-    return inv, det
+def inv2(m: NDArray) -> NDArray:
+    """Inverses of a stack of 2×2 matrices (closed form: no LAPACK call per matrix)."""
+    inv = np.empty_like(m)
+    det = m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
+    inv[..., 0, 0] = m[..., 1, 1] / det
+    inv[..., 1, 1] = m[..., 0, 0] / det
+    inv[..., 0, 1] = -m[..., 0, 1] / det
+    inv[..., 1, 0] = -m[..., 1, 0] / det
+    return inv
 
 
 _GATES: dict[float, float] = {}
@@ -92,7 +95,7 @@ def associate(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
         res = np.empty((k, n_ref, 2))
         res[..., 0] = (theta[:, None] - refs.theta[None, :] + np.pi) % TWO_PI - np.pi
         res[..., 1] = rho[:, None] - refs.rho[None, :]
-        s_inv, _ = _inv2(s_pose[None, :, :, :] + cov[:, None, :, :])
+        s_inv = inv2(s_pose[None, :, :, :] + cov[:, None, :, :])
         d2 = np.einsum("kli,klij,klj->kl", res, s_inv, res)
         better = d2 < best_d2
         best_d2 = np.where(better, d2, best_d2)

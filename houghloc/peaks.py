@@ -18,13 +18,13 @@ class Peaks:
 
     i_theta: NDArray[np.intp]
     i_rho: NDArray[np.intp]
-    votes: NDArray[np.int32]
+    votes: NDArray[np.integer]
 
     def __len__(self) -> int:
         return len(self.votes)
 
 
-def find_peaks(acc: NDArray[np.int32], n_points: int, config: HoughConfig,
+def find_peaks(acc: NDArray[np.integer], n_points: int, config: HoughConfig,
                limit: int | None = None) -> Peaks:
     """Cells with ≥ max(peak_min_votes, peak_fraction·N) votes, maximal in their window.
 
@@ -33,11 +33,18 @@ def find_peaks(acc: NDArray[np.int32], n_points: int, config: HoughConfig,
     the refinement merges them, since they are the same line.
     """
     threshold = max(config.peak_min_votes, int(np.ceil(config.peak_fraction * n_points)))
+    flat = acc.ravel()
+    cand = np.flatnonzero(flat >= threshold)  # few cells: compare only these with the window
+    if len(cand) == 0:
+        e = np.empty(0, np.intp)
+        return Peaks(e, e, np.empty(0, acc.dtype))
     w, h = config.nms_theta_cells, config.nms_rho_cells
-    padded = np.concatenate((acc[-w:], acc, acc[:w])).astype(np.float32)
+    dtype = np.uint16 if n_points < 65535 else np.float32  # types OpenCV dilates
+    padded = np.concatenate((acc[-w:], acc, acc[:w])).astype(dtype)
     kernel = np.ones((2 * w + 1, 2 * h + 1), np.uint8)
-    window_max = cv2.dilate(padded, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)[w:-w]
-    it, ir = np.nonzero((acc >= threshold) & (acc >= window_max))
-    v = acc[it, ir]
+    window_max = cv2.dilate(padded, kernel)[w:-w].ravel()
+    cand = cand[flat[cand] >= window_max[cand]]
+    v = flat[cand]
     order = np.argsort(-v, kind="stable")[: limit or config.max_peaks]
-    return Peaks(it[order], ir[order], v[order])
+    it, ir = np.divmod(cand[order], acc.shape[1])
+    return Peaks(it, ir, v[order])

@@ -8,7 +8,8 @@ dropped (a robot's arc, a lone return). All peaks are processed together as N×K
 Covariance of a fitted line (normal angle θ, offset ρ), with σ² the residual variance, N inliers,
 sᵢ their coordinates along the line and s̄ their mean:
     var θ = σ² / Σ(sᵢ − s̄)²,    var(offset at the centroid) = σ² / N,
-    ρ = c·n(θ)  ⇒  ∂ρ/∂θ = c·t = s̄,  so  C = [[vθ, s̄ vθ], [s̄ vθ, σ²/N + s̄² vθ]].
+    ρ = c·n(θ)  ⇒  ∂ρ/∂θ = c·t = s̄,  so  C = [[vθ, s̄ vθ], [s̄ vθ, σ²/N + s̄² vθ]],
+plus a small floor on each diagonal term (``line_theta_floor_deg``, ``line_rho_floor``).
 """
 
 from __future__ import annotations
@@ -112,15 +113,21 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
     monomials = _moments(points)
     band = config.rho_step  # first pass: one cell either side of the peak
     theta, rho = np.asarray(theta0, float), np.asarray(rho0, float)
-    mask = np.zeros((len(points), len(theta)), dtype=bool)
-    for it in range(config.refine_iterations):
-        normal = np.vstack((np.cos(theta), np.sin(theta)))
-        mask = np.abs(points @ normal - rho) <= band  # inliers: |p·n − ρ| within the band
-        if it == config.refine_iterations - 1:
-            mask = _split_pieces(points @ np.vstack((-normal[1], normal[0])), mask, config)
-        theta, rho, var, n, c, spread_var = _tls(monomials, mask)
+    for _ in range(config.refine_iterations - 1):
+        mask = _inliers(points, theta, rho, band)
+        theta, rho, var, n, _, _ = _tls(monomials, mask)
         band = np.clip(config.refine_band_sigmas * np.sqrt(var), config.refine_min_band,
                        config.rho_step)
+    keep = _distinct(theta, rho, n, config)
+    theta, rho, band = theta[keep], rho[keep], np.broadcast_to(band, keep.shape)[keep]
+    mask = _inliers(points, theta, rho, band)
+    # Points near a corner lie within the band of both walls and bias both fits: they are left
+    # out of the last fit (a corner has plenty of other points on each side).
+    mask &= (mask.sum(axis=1) <= 1)[:, None]
+    normal = np.vstack((np.cos(theta), np.sin(theta)))
+    mask = _split_pieces(points @ np.vstack((-normal[1], normal[0])), mask, config)
+    theta, rho, var, n, c, spread_var = _tls(monomials, mask)
+
     sigma = np.sqrt(var)
     t = np.vstack((-np.sin(theta), np.cos(theta)))
     along = points @ t  # N×K
@@ -136,26 +143,32 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
     cov[:, 0, 0] = v_theta
     cov[:, 0, 1] = cov[:, 1, 0] = s_bar * v_theta
     cov[:, 1, 1] = v_off + s_bar**2 * v_theta
-    lines = Lines(theta, rho, cov, n.astype(np.int64), sigma, s0, s1, mask)
-    return _deduplicate(lines.subset(ok), config)
+    # Real walls are not perfect lines and sensors have small biases: a floor keeps thousands of
+    # points from claiming sub-millimetre certainty.
+    cov[:, 0, 0] += config.line_theta_floor**2
+    cov[:, 1, 1] += config.line_rho_floor**2
+    return Lines(theta, rho, cov, n.astype(np.int64), sigma, s0, s1, mask).subset(ok)
 
 
-def _deduplicate(lines: Lines, config: HoughConfig) -> Lines:
-    """Merge peaks that refined to the same line (plateaus, θ ↔ θ+π twins near ρ = 0).
+def _inliers(points: NDArray, theta: NDArray, rho: NDArray, band: NDArray | float) -> NDArray:
+    """N×K mask of |p·n − ρ| ≤ band."""
+    return np.abs(points @ np.vstack((np.cos(theta), np.sin(theta))) - rho) <= band
+
+
+def _distinct(theta: NDArray, rho: NDArray, n: NDArray, config: HoughConfig) -> NDArray:
+    """Drop peaks that refined to the same line (plateaus, θ ↔ θ+π twins near ρ = 0).
 
     Two lines are the same when they differ by less than one grid cell in both θ and ρ, in either
     representation of the identity (θ, ρ) ≡ (θ + π, −ρ). The one with more inliers is kept.
     """
-    k = len(lines)
+    k = len(theta)
     if k < 2:
-        return lines
-    dth = np.abs((lines.theta[:, None] - lines.theta[None, :] + np.pi) % TWO_PI - np.pi)
-    drho = np.abs(lines.rho[:, None] - lines.rho[None, :])
-    same = (dth < config.theta_step) & (drho < config.rho_step)
-    dth_flip = np.abs((lines.theta[:, None] - lines.theta[None, :]) % TWO_PI - np.pi)
-    same |= (dth_flip < config.theta_step) & (lines.rho[:, None] + lines.rho[None, :] <
-                                              config.rho_step)
-    stronger = (lines.n[None, :] > lines.n[:, None]) | (
-        (lines.n[None, :] == lines.n[:, None]) & (np.arange(k)[None, :] < np.arange(k)[:, None]))
-    dominated = (same & stronger).any(axis=1)
-    return lines.subset(~dominated)
+        return n > 0
+    dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % TWO_PI - np.pi)
+    same = (dth < config.theta_step) & (np.abs(rho[:, None] - rho[None, :]) < config.rho_step)
+    dth_flip = np.abs((theta[:, None] - theta[None, :]) % TWO_PI - np.pi)
+    same |= (dth_flip < config.theta_step) & (rho[:, None] + rho[None, :] < config.rho_step)
+    idx = np.arange(k)
+    stronger = (n[None, :] > n[:, None]) | (
+        (n[None, :] == n[:, None]) & (idx[None, :] < idx[:, None]))
+    return (n > 0) & ~(same & stronger).any(axis=1)

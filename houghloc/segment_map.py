@@ -178,7 +178,7 @@ class SegmentMap:
         line_of = np.empty(len(alpha), dtype=np.intp)
         n_a = max(1, round(np.pi / angle_tol))
         for i, (a, ri) in enumerate(zip(alpha, r, strict=True)):
-            ka, kr = int(a / angle_tol), int(math.floor(ri / dist_tol))
+            ka, kr = int(a / angle_tol), math.floor(ri / dist_tol)
             found = -1
             for da in (-1, 0, 1):
                 for dr in (-1, 0, 1):

@@ -62,7 +62,7 @@ def make_grid(config: HoughConfig) -> HoughGrid:
     return _grid(config.theta_step, config.rho_step, config.rho_max, config.rho_margin_cells)
 
 
-def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int32]:
+def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int64]:
     """Accumulate HT(θ, ρ): each point votes once per θ column, in the cell where its ρ falls.
 
     One float32 matrix product gives ρ for every (point, θ) (float32 resolves ρ to a micrometre at
@@ -78,4 +78,4 @@ def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int32]:
     flat = q.astype(np.int32)
     flat += grid.row_offsets
     counts = np.bincount(flat.ravel(), minlength=grid.n_theta * (grid.n_rho + 2))
-    return counts.reshape(grid.n_theta, grid.n_rho + 2)[:, 1:-1].astype(np.int32)
+    return counts.reshape(grid.n_theta, grid.n_rho + 2)[:, 1:-1]

@@ -1,0 +1,84 @@
+"""Speed of one `localize_scan` step against OpenCV's Hough voting on the same points.
+
+Prints (1) the ratio of our whole step (vote, peaks, refinement, matching, displacement) to
+`cv2.HoughLinesPointSet` alone at 1° × 1 cm over ρ ∈ [−20, 20] m on the same 361-point scans,
+(2) how the step grows with the number of points, (3) how it grows with the map's size.
+Absolute times on a shared machine mean little; the ratios are measured in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import cv2
+import numpy as np
+
+from benchmarks.common import MAPS, ray_scan, tiled_map, time_interleaved
+from houghloc import HoughConfig, SegmentMap, localize_scan
+
+
+def opencv_voting(points: np.ndarray):
+    pts = points.astype(np.float32).reshape(-1, 1, 2)
+    return lambda: cv2.HoughLinesPointSet(pts, 32, 10, -20.0, 20.0, 0.01, 0.0, np.pi,
+                                          np.pi / 180)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=15)
+    args = parser.parse_args(argv)
+    cfg = HoughConfig()
+    field = SegmentMap.from_yaml(MAPS / "robocup.yaml")
+    rng = np.random.default_rng(7)
+    poses = [np.array([rng.uniform(-3.5, 3.5), rng.uniform(-1.8, 1.8), rng.uniform(-3, 3)])
+             for _ in range(8)]
+    scans = [ray_scan(field, p, 361, seed=i) for i, p in enumerate(poses)]
+    guesses = [p + np.array([0.1, -0.1, np.radians(4)]) for p in poses]
+
+    results = {}
+    print("1) one scan step, 361 beams, RoboCup field (median per call)")
+    ours_t, cv_t = [], []
+    for pts, guess in zip(scans, guesses, strict=True):
+        t = time_interleaved({"ours": lambda p=pts, g=guess: localize_scan(p, field, g, cfg),
+                              "opencv": opencv_voting(pts)}, rounds=args.rounds)
+        ours_t.append(t["ours"])
+        cv_t.append(t["opencv"])
+    ratio = float(np.median(np.array(ours_t) / np.array(cv_t)))
+    results["ratio_vs_opencv"] = ratio
+    print(f"   localize_scan {np.median(ours_t) * 1e3:.3f} ms   "
+          f"cv2.HoughLinesPointSet (1°×1 cm, ρ∈[−20,20]) {np.median(cv_t) * 1e3:.3f} ms   "
+          f"ratio {ratio:.2f}×  (target ≤ 1.0×)")
+
+    print("2) growth with the number of points (same scene, denser beams)")
+    base = None
+    for n in (100, 361, 1000, 3000, 10000):
+        pts = ray_scan(field, poses[0], n, seed=1)
+        t = time_interleaved({"ours": lambda p=pts: localize_scan(p, field, guesses[0], cfg),
+                              "opencv": opencv_voting(pts)}, rounds=max(5, args.rounds // 3))
+        base = base or t["ours"]
+        print(f"   {n:6d} points: {t['ours'] * 1e3:7.3f} ms ({t['ours'] / base:5.2f}× of 100)"
+              f"   opencv {t['opencv'] * 1e3:7.3f} ms   ratio {t['ours'] / t['opencv']:.2f}×")
+
+    print("3) growth with the map (office tiled; the robot in the first copy)")
+    office = SegmentMap.from_yaml(MAPS / "office.yaml")
+    pose = np.array([5.0, 6.0, 0.3])
+    pts = ray_scan(office, pose, 361, seed=2)
+    guess = pose + np.array([0.1, 0.1, 0.05])
+    times = {}
+    for n in (10, 100, 1000, 10000):
+        big = tiled_map(office, max(n, 29)) if n >= 29 else office
+        if n < 29:  # fewer segments than the office: keep the ones nearest the robot
+            near = np.argsort(np.linalg.norm((big.starts + big.ends) / 2 - pose[:2], axis=1))[:n]
+            big = SegmentMap(big.starts[near], big.ends[near], list(big.kinds[near]))
+        t = time_interleaved({"ours": lambda b=big: localize_scan(pts, b, guess, cfg)},
+                             rounds=max(5, args.rounds // 3))
+        times[n] = t["ours"]
+        print(f"   {len(big):6d} segments: {t['ours'] * 1e3:7.3f} ms")
+    spread = max(times.values()) / min(times.values())
+    results["map_size_spread"] = spread
+    print(f"   largest / smallest: {spread:.2f}×  (target ≤ 2×)")
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,70 @@
+"""Helpers shared by the benchmark scripts: interleaved timing and small scene builders."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from houghloc import SegmentMap
+
+REPO = Path(__file__).resolve().parents[1]
+MAPS = REPO / "configs" / "maps"
+
+
+def time_interleaved(funcs: dict[str, Callable[[], object]], rounds: int = 15,
+                     inner: int = 20) -> dict[str, float]:
+    """Median seconds per call of each function, measured in alternating rounds.
+
+    These machines are noisy: alternating the contenders round by round exposes them to the same
+    load, so their ratio means something even when absolute times drift.
+    """
+    samples: dict[str, list[float]] = {k: [] for k in funcs}
+    for f in funcs.values():
+        f()  # warm caches and lazy initialisation
+    for _ in range(rounds):
+        for name, f in funcs.items():
+            t0 = time.perf_counter()
+            for _ in range(inner):
+                f()
+            samples[name].append((time.perf_counter() - t0) / inner)
+    return {k: float(np.median(v)) for k, v in samples.items()}
+
+
+def ray_scan(m: SegmentMap, pose: np.ndarray, n_beams: int = 361, fov: float = np.pi,
+             sigma: float = 0.01, max_range: float = 10.0, seed: int = 0) -> np.ndarray:
+    """Robot-frame points of a noisy laser scan of the map's walls (first hit per beam)."""
+    rng = np.random.default_rng(seed)
+    rel = np.linspace(-fov / 2, fov / 2, n_beams)
+    ang = rel + pose[2]
+    d = np.column_stack((np.cos(ang), np.sin(ang)))
+    near = m.segments_near(pose[:2], max_range)
+    walls = near[m.is_wall[near]]
+    p0 = m.starts[walls] - pose[:2]
+    e = m.ends[walls] - m.starts[walls]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]
+        t = (p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]) / den
+        u = (p0[:, 0] * d[:, 1:] - p0[:, 1] * d[:, :1]) / den
+    r = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf).min(axis=1)
+    r = r + rng.normal(0.0, sigma, n_beams)
+    keep = r < max_range
+    return np.column_stack((r * np.cos(rel), r * np.sin(rel)))[keep]
+
+
+def tiled_map(base: SegmentMap, n_segments: int) -> SegmentMap:
+    """Copies of ``base`` side by side on a square grid until ``n_segments`` are reached."""
+    span = base.starts.max(axis=0) - base.starts.min(axis=0) + 1.0
+    tiles = int(np.ceil(n_segments / len(base)))
+    side = int(np.ceil(np.sqrt(tiles)))
+    starts, ends = [], []
+    for k in range(tiles):
+        off = np.array([k % side, k // side]) * span
+        starts.append(base.starts + off)
+        ends.append(base.ends + off)
+    s = np.concatenate(starts)[:n_segments]
+    e = np.concatenate(ends)[:n_segments]
+    kinds = list(np.tile(base.kinds, tiles)[:n_segments])
+    return SegmentMap(s, e, kinds=kinds, name=f"{base.name}x{tiles}")

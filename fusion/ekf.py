@@ -1,0 +1,145 @@
+"""EKF on the planar pose (x, y, θ) in ``map``, built on filterpy's ``ExtendedKalmanFilter``.
+
+filterpy does the algebra (prediction of P, gain, Joseph-form update); this class supplies what
+a pose needs: the nonlinear odometry prediction x ← x ⊕ δ, a measurement residual whose angle is
+wrapped, the heading wrapped after each update, a symmetric positive-definite P, updates
+restricted to the observable directions, and NIS gating.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2
+
+from houghloc.geometry import compose, wrap_angle
+
+_FULL_BASIS = np.eye(3)
+_EIGEN_FLOOR = 1e-12  # smallest variance kept when P has to be repaired
+
+
+@dataclass(frozen=True, slots=True)
+class UpdateOutcome:
+    """What became of a pose measurement.
+
+    ``status``: ``accepted``, ``rejected`` (outside the NIS gate), ``dropped`` (older than the
+    history) or ``invalid`` (non-finite or singular). ``nis`` = yᵀS⁻¹y with ``dof`` degrees of
+    freedom; ``dof`` = 0 and an empty ``innovation`` when the measurement was never compared.
+    """
+
+    accepted: bool
+    nis: float
+    dof: int
+    innovation: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    status: str = "accepted"
+
+
+def motion_jacobians(
+    x: NDArray[np.float64], delta: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """F = ∂(x ⊕ δ)/∂x and G = ∂(x ⊕ δ)/∂δ, evaluated at the prior x."""
+    c, s = math.cos(x[2]), math.sin(x[2])
+    dx, dy = float(delta[0]), float(delta[1])
+    f = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+    g = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return f, g
+
+
+def symmetric_pd(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """P ← (P + Pᵀ)/2, with eigenvalues raised to a tiny floor if rounding made it indefinite."""
+    p = 0.5 * (p + p.T)
+    try:
+        np.linalg.cholesky(p)
+        return p
+    except np.linalg.LinAlgError:
+        w, v = np.linalg.eigh(p)
+        return (v * np.maximum(w, _EIGEN_FLOOR)) @ v.T
+
+
+def _constant_jacobian(_x: NDArray[np.float64], h: NDArray[np.float64]) -> NDArray[np.float64]:
+    return h
+
+
+def _project(x: NDArray[np.float64], h: NDArray[np.float64]) -> NDArray[np.float64]:
+    return h @ x
+
+
+class PoseEKF(ExtendedKalmanFilter):
+    """x = (x, y, θ) in ``map`` (a 1-D array), P its 3×3 covariance.
+
+    One instance is meant to be reused: assign ``x`` and ``P``, then predict or update — the
+    tracker uses it as the engine for every step of its history.
+    """
+
+    def __init__(self, pose: ArrayLike, cov: ArrayLike, gate_prob: float | None = 0.999) -> None:
+        super().__init__(dim_x=3, dim_z=3)
+        self.x = np.array(pose, dtype=float)
+        self.P = np.array(cov, dtype=float)
+        # χ² quantiles per measurement dimension, computed once: gate_prob None disables gating.
+        self.gates = {
+            k: (math.inf if gate_prob is None else float(chi2.ppf(gate_prob, k))) for k in (1, 2, 3)
+        }
+
+    def predict_x(self, u: ArrayLike = 0) -> None:
+        """x⁻ = x ⊕ δ: the nonlinear state prediction (filterpy's hook for it)."""
+        self.x = compose(self.x, u)
+
+    def predict_odometry(self, delta: ArrayLike, q_delta: NDArray[np.float64]) -> None:
+        """Predict with an odometry increment δ (robot frame) whose covariance is ``q_delta``.
+
+        F and G are taken at the prior; filterpy then computes x⁻ = x ⊕ δ and
+        P⁻ = F P Fᵀ + Q with Q = G Q_δ Gᵀ (the increment's noise rotated into ``map``).
+        """
+        f, g = motion_jacobians(self.x, delta)
+        self.F = f
+        self.Q = g @ q_delta @ g.T
+        self.predict(u=delta)
+        self.P = 0.5 * (self.P + self.P.T)
+
+    def innovation(
+        self, z: ArrayLike, r: NDArray[np.float64], basis: NDArray[np.float64] | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
+        """(H, y, S, NIS) of a pose measurement z with covariance R, without updating.
+
+        H = Uᵀ, y = Uᵀ(z ⊖ x) with the angle difference wrapped, S = H P Hᵀ + Uᵀ R U,
+        NIS = yᵀ S⁻¹ y. Raises ``LinAlgError`` if S is not positive definite.
+        """
+        h = (_FULL_BASIS if basis is None else basis).T
+        d = np.asarray(z, dtype=float) - self.x
+        d[2] = wrap_angle(d[2])
+        y = h @ d
+        s = h @ (self.P + r) @ h.T
+        chol = np.linalg.cholesky(s)
+        w = np.linalg.solve(chol, y)
+        return h, y, s, float(w @ w)
+
+    def update_pose(
+        self, z: ArrayLike, r: ArrayLike, basis: NDArray[np.float64] | None = None
+    ) -> UpdateOutcome:
+        """Update with an absolute pose z (map frame) of covariance R (3×3), gated by the NIS.
+
+        With ``basis`` U (3×k, orthonormal columns) only the k observable directions are
+        measured: z_k = Uᵀz, R_k = UᵀRU, H = Uᵀ; the unobserved direction is not updated.
+        Inputs are assumed finite and validated by the caller (see ``PoseTracker``).
+        """
+        r = np.asarray(r, dtype=float)
+        try:
+            h, y, _, nis = self.innovation(z, r, basis)
+        except np.linalg.LinAlgError:
+            return UpdateOutcome(False, 0.0, 0, status="invalid")
+        dof = h.shape[0]
+        if not nis <= self.gates[dof]:
+            return UpdateOutcome(False, nis, dof, y, status="rejected")
+        # Hand filterpy the measurement H x + y, so its plain subtraction z - Hx yields the
+        # wrapped residual y (a measured angle near +π against a state near -π moves the short
+        # way); then K = P Hᵀ S⁻¹, x = x + K y, P = (I-KH) P (I-KH)ᵀ + K R Kᵀ (Joseph form).
+        super().update(
+            h @ self.x + y, _constant_jacobian, _project, R=h @ r @ h.T, args=(h,), hx_args=(h,)
+        )
+        self.x[2] = wrap_angle(self.x[2])
+        self.P = symmetric_pd(self.P)
+        return UpdateOutcome(True, nis, dof, y)

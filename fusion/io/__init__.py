@@ -1,0 +1,106 @@
+"""Readers and writers: logs in, events out; trajectories and metrics out.
+
+``open_log(path)`` picks the reader from the file:
+
+* ``*.mat`` → the Intel lab ``.mat`` (``read_intel_mat``);
+* a directory with ``log.carmen`` → the simulator's output directory: its CARMEN log, merged in time
+  with any extra event sources (the simulator module passes a reader of ``camera.points`` as
+  ``extra_sources``);
+* a directory with ``metadata.yaml``, a ``*.bag``, ``*.mcap`` or ``*.db3`` → a ROS bag;
+* anything else → a CARMEN text log, plain or gzip (``read_carmen``).
+
+All readers stream: they return an iterable of events plus a ``ReadStats`` that fills as the
+events are consumed. Every reader raises ``LogError`` for a file it cannot use.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import Any
+
+from fusion.events import Event, ReadStats
+from fusion.io.carmen import CarmenLog, FlaserSpacing, flaser_angles, read_carmen
+from fusion.io.errors import LogError
+from fusion.io.files import atomic_write_json, atomic_write_text
+from fusion.io.intel_mat import IntelMatLog, read_intel_mat
+from fusion.io.relations import INTEL_TIME_OFFSET, Relations, read_relations
+from fusion.io.rosbag import RosbagLog, read_rosbag
+from fusion.io.tum import TrajectoryValueError, TumWriter, read_tum, write_tum
+
+__all__ = [
+    "INTEL_TIME_OFFSET",
+    "SIM_LOG_NAME",
+    "CarmenLog",
+    "EventSource",
+    "FlaserSpacing",
+    "IntelMatLog",
+    "LogError",
+    "Relations",
+    "RosbagLog",
+    "TrajectoryValueError",
+    "TumWriter",
+    "atomic_write_json",
+    "atomic_write_text",
+    "flaser_angles",
+    "merge_by_time",
+    "open_log",
+    "read_carmen",
+    "read_intel_mat",
+    "read_relations",
+    "read_rosbag",
+    "read_tum",
+    "write_tum",
+]
+
+SIM_LOG_NAME = "log.carmen"
+"""The CARMEN log inside a simulator output directory."""
+
+ROSBAG_SUFFIXES = (".bag", ".mcap", ".db3")
+
+EventSource = Callable[[Path], Iterable[Event]]
+"""An extra reader for a simulator directory: given the directory, it returns events in time order
+(e.g. the camera's ``PointSet``s from ``camera.points``). It may return nothing."""
+
+
+def open_log(
+    path: str | Path,
+    *,
+    extra_sources: Iterable[EventSource] = (),
+    **reader_options: Any,
+) -> tuple[Iterator[Event], ReadStats]:
+    """Open any supported log; return (events iterator, stats filled while iterating).
+
+    ``reader_options`` go to the chosen reader (e.g. ``raw_odometry=`` or ``spacing=`` for CARMEN,
+    ``scan_topics=`` for bags). ``extra_sources`` only apply to a simulator directory: their events
+    are merged with the CARMEN log's by time (stable: on equal times the log's events come first).
+    Raises ``LogError`` for a missing path or a directory that is neither kind.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise LogError(path, "file not found")
+    if path.is_dir():
+        if (path / SIM_LOG_NAME).is_file():
+            carmen = read_carmen(path / SIM_LOG_NAME, **reader_options)
+            streams = [iter(carmen), *(iter(source(path)) for source in extra_sources)]
+            events = merge_by_time(streams) if len(streams) > 1 else streams[0]
+            return events, carmen.stats
+        if (path / "metadata.yaml").is_file():
+            bag = read_rosbag(path, **reader_options)
+            return iter(bag), bag.stats
+        raise LogError(path, f"directory without {SIM_LOG_NAME} or a ROS 2 bag's metadata.yaml")
+    suffix = path.suffix.lower()
+    if suffix == ".mat":
+        mat = read_intel_mat(path, **reader_options)
+        return iter(mat), mat.stats
+    if suffix in ROSBAG_SUFFIXES:
+        bag = read_rosbag(path, **reader_options)
+        return iter(bag), bag.stats
+    carmen = read_carmen(path, **reader_options)
+    return iter(carmen), carmen.stats
+
+
+def merge_by_time(streams: Iterable[Iterable[Event]]) -> Iterator[Event]:
+    """Merge event streams that are each in time order into one (lazy; ties keep stream order)."""
+    return heapq.merge(*streams, key=lambda event: event.t)

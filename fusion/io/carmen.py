@@ -1,0 +1,472 @@
+"""Streaming reader for CARMEN text logs (plain or gzip).
+
+Records used: ``ODOM``, ``FLASER``, ``ROBOTLASER1`` and, when present, ``TRUEPOS`` (as ``Truth``).
+Every other record type (``PARAM``, ``SYNC``, ``NEFF``, ``RLASER``, ``RAWLASER*``, …) and ``#``
+comments are skipped silently. Field layouts:
+
+* ``ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp``
+* ``FLASER n r1 … rn x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname
+  logger_timestamp`` — n beams over 180° from −90° (right) to +90° (left), see ``FlaserSpacing``.
+* ``ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode
+  n r1 … rn m rem1 … remm laser_x laser_y laser_theta robot_x robot_y robot_theta tv rv
+  forward_safety_dist side_safety_dist turn_axis ipc_timestamp ipc_hostname logger_timestamp``
+* ``TRUEPOS true_x true_y true_theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname
+  logger_timestamp``
+
+``ipc_timestamp`` is the measurement time. Ranges at or beyond the no-return range (default 80 m,
+``Scan.max_range``) mean "no return"; ranges are passed on unchanged.
+
+**Corrected logs** (GMapping output, see ``data/SOURCES.md``): the laser record's pose is the
+corrected map-frame pose and goes to ``Scan.reference`` only. After each laser record the
+``ODOM`` chain is re-anchored: the next ``ODOM`` line (the *anchor*) repeats the corrected pose and
+the following ``ODOM`` lines continue from it with the raw wheel motion. Anchors are recognised by
+repeating the laser record's pose or by ``ipc_timestamp == 0`` (in the real logs their timestamp is
+usually 0 but sometimes uninitialised memory such as 1e-42, 1.13 or −0.96). The reader rebuilds one
+continuous raw odometry trajectory from the increments, ``prev⁻¹ ⊕ next`` without an anchor in
+between and ``anchor⁻¹ ⊕ next`` with one, so the correction (the jump from ``prev`` to the anchor)
+never reaches the odometry. The raw chain starts at the log's first ``ODOM`` pose.
+
+**Bad records** (truncated, non-numeric, NaN/inf pose or time, NaN/negative range, wrong count) are
+skipped; each adds a message with its line number to ``ReadStats`` (``ReadStats.warn``) and the
+first ``LOGGED_WARNINGS`` of them are also emitted on the ``logging`` logger ``fusion.io.carmen`` at
+WARNING level, followed by one summary line if there were more (``logging`` rather than the
+``warnings`` module because a corrupt log can produce thousands, and ``warnings`` would either
+flood or de-duplicate them by source line). **Bad files** raise ``LogError``.
+
+Timestamps that go backwards are passed on unchanged, in file order, and counted in
+``ReadStats.backwards_timestamps``: ordering is the localizer's job.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.events import Event, Odometry, ReadStats, Scan, Truth
+from fusion.io.errors import LogError
+from fusion.io.textfile import open_text_log
+from houghloc.geometry import compose, relative
+
+log = logging.getLogger(__name__)
+
+NO_RETURN_RANGE = 80.0
+"""Ranges at or above this (metres) are "no return" (SICK logs use 81.83 / 81.91)."""
+
+LOGGED_WARNINGS = 20
+"""How many bad records per file are reported through ``logging`` (all are counted)."""
+
+SNIFF_LINES = 20000
+"""Lines read ahead to detect the log's conventions (corrected or raw, odometry source)."""
+
+_KNOWN_RECORDS = frozenset(
+    {
+        "ODOM",
+        "FLASER",
+        "RLASER",
+        "LASER3",
+        "LASER4",
+        "ROBOTLASER1",
+        "ROBOTLASER2",
+        "RAWLASER1",
+        "RAWLASER2",
+        "RAWLASER3",
+        "RAWLASER4",
+        "TRUEPOS",
+        "PARAM",
+        "SYNC",
+        "NEFF",
+        "SONAR",
+        "BUMPER",
+        "GPSNMEA",
+        "GPSGGA",
+        "GPSRMC",
+        "VECTORMOVE",
+        "ROBOTVELOCITY",
+        "FOLLOWTRAJECTORY",
+        "BASEVELOCITY",
+        "IMU",
+        "ARM",
+    }
+)
+_LASER_RECORDS = ("FLASER", "ROBOTLASER1")
+
+
+class FlaserSpacing(StrEnum):
+    """Angular layout of the n beams of an ``FLASER`` record over its 180° field of view.
+
+    ``ENDPOINTS``: spacing π/(n−1), beams at ``linspace(−π/2, π/2, n)`` (first beam at −90°, last at
+    +90°; the Intel ``.mat`` uses this, ``beam_start = −π/2``, ``beam_end = +π/2``).
+    ``PI_OVER_N``: spacing π/n, beams at −π/2 + i·π/n (first beam at −90°, last one step short).
+
+    On the three corrected logs, endpoints projected from the reference poses occupy 1–9 % fewer
+    5 cm cells with ``PI_OVER_N`` than with ``ENDPOINTS`` (a sharper map: the convention of the
+    tool that corrected them), and fewer than any half-step shift of either.
+    """
+
+    ENDPOINTS = "pi/(n-1)"
+    PI_OVER_N = "pi/n"
+
+
+def flaser_angles(n: int, spacing: FlaserSpacing = FlaserSpacing.ENDPOINTS) -> NDArray[np.float64]:
+    """Beam angles (robot frame, radians) of an n-beam ``FLASER`` record."""
+    if spacing == FlaserSpacing.ENDPOINTS:
+        angles = np.linspace(-np.pi / 2, np.pi / 2, n)
+    else:
+        angles = -np.pi / 2 + np.arange(n) * (np.pi / n)
+    angles.flags.writeable = False  # shared between all scans with the same n
+    return angles
+
+
+@dataclass(frozen=True, slots=True)
+class CarmenConventions:
+    """How a log is to be interpreted; detected from its first lines unless given."""
+
+    corrected: bool
+    """ODOM lines are re-anchored on corrected poses; laser poses are references."""
+    laser_odometry: bool
+    """No ODOM records: odometry comes from the laser records' ``odom_x odom_y odom_theta``."""
+
+
+class _BadRecord(ValueError):
+    """A record that cannot be used; the message says why (the caller adds the line number)."""
+
+
+@dataclass
+class CarmenLog:
+    """A CARMEN log opened for streaming. Iterate it to get events in file order.
+
+    ``stats`` is filled while iterating (``records`` counts the records used, re-anchoring ODOM
+    lines included) (and reset in place when iterating again, so a reference
+    taken before iterating stays valid). Iteration raises ``LogError`` if the file turns out to have
+    no usable record at all.
+    """
+
+    path: Path
+    conventions: CarmenConventions
+    spacing: FlaserSpacing = FlaserSpacing.ENDPOINTS
+    no_return_range: float = NO_RETURN_RANGE
+    stats: ReadStats = field(default_factory=ReadStats)
+
+    @property
+    def corrected(self) -> bool:
+        return self.conventions.corrected
+
+    def __iter__(self) -> Iterator[Event]:
+        _reset(self.stats)
+        with open_text_log(self.path) as f:
+            yield from _CarmenParser(self).events(f)
+
+
+def read_carmen(
+    path: str | Path,
+    raw_odometry: bool | None = None,
+    *,
+    spacing: FlaserSpacing | str = FlaserSpacing.ENDPOINTS,
+    no_return_range: float = NO_RETURN_RANGE,
+    laser_odometry: bool | None = None,
+) -> CarmenLog:
+    """Open a CARMEN log (plain or ``.gz``) for streaming; see the module docstring.
+
+    ``raw_odometry``: True — the ``ODOM`` poses are raw odometry, used as they are; False — the log
+    is *corrected* (ODOM re-anchored on reference poses, laser poses are references); None —
+    detect it (corrected when an ``ODOM`` line with timestamp 0 follows a laser record).
+    ``laser_odometry``: take odometry from the laser records (old logs without ``ODOM``); None —
+    when the log has no ``ODOM`` record. Never done for corrected logs (their laser-line odometry
+    is the corrected pose). ``spacing``: FLASER beam layout. ``no_return_range``: ranges at or above
+    it mean no return (``Scan.max_range``).
+
+    Raises ``LogError`` when the file is missing, binary, empty or has no CARMEN record in its
+    first lines; iterating raises it when no record at all is usable.
+    """
+    path = Path(path)
+    detected = _sniff(path)
+    corrected = detected.corrected if raw_odometry is None else not raw_odometry
+    if laser_odometry is None:
+        laser_odometry = detected.laser_odometry
+    conventions = CarmenConventions(
+        corrected=corrected, laser_odometry=laser_odometry and not corrected
+    )
+    return CarmenLog(path, conventions, FlaserSpacing(spacing), float(no_return_range))
+
+
+def _reset(stats: ReadStats) -> None:
+    stats.records = stats.skipped = stats.backwards_timestamps = 0
+    stats.warnings.clear()
+
+
+def _sniff(path: Path) -> CarmenConventions:
+    """Read the first lines to tell CARMEN from other files and detect the conventions."""
+    odom = laser = anchors = known = nonblank = 0
+    lines_since_laser = None
+    with open_text_log(path) as f:
+        for number, line in enumerate(f, start=1):
+            if number > SNIFF_LINES or laser >= 10:
+                break
+            tokens = line.split(maxsplit=1)
+            if not tokens:
+                continue
+            nonblank += 1
+            if tokens[0].startswith("#"):
+                continue
+            kind = tokens[0]
+            if kind in _KNOWN_RECORDS:
+                known += 1
+            if kind in _LASER_RECORDS:
+                laser += 1
+                lines_since_laser = 0
+                continue
+            if lines_since_laser is not None:
+                lines_since_laser += 1
+            if kind == "ODOM":
+                odom += 1
+                # The re-anchoring line of a corrected log: timestamp 0 right after a laser record.
+                if (
+                    lines_since_laser is not None
+                    and lines_since_laser <= 3
+                    and _odom_time(line) == 0
+                ):
+                    anchors += 1
+    if nonblank == 0:
+        raise LogError(path, "empty file (no records)")
+    if known == 0:
+        raise LogError(path, "not a CARMEN log (no ODOM/FLASER/ROBOTLASER1/PARAM record found)")
+    return CarmenConventions(corrected=anchors > 0, laser_odometry=odom == 0 and laser > 0)
+
+
+def _odom_time(line: str) -> float | None:
+    tokens = line.split()
+    try:
+        return float(tokens[7])
+    except (IndexError, ValueError):
+        return None
+
+
+class _CarmenParser:
+    """One pass over a log: parses records, rebuilds raw odometry, fills the stats."""
+
+    def __init__(self, source: CarmenLog) -> None:
+        self.source = source
+        self.stats = source.stats
+        self.corrected = source.conventions.corrected
+        self.laser_odometry = source.conventions.laser_odometry
+        self._angles: dict[int, NDArray[np.float64]] = {}
+        self._last_t: float | None = None
+        # Raw-odometry reconstruction for corrected logs (see the module docstring).
+        self._raw: NDArray[np.float64] | None = None  # last emitted raw pose
+        self._prev_logged: NDArray[np.float64] | None = None  # logged pose of the last ODOM t > 0
+        self._anchor: NDArray[np.float64] | None = None  # re-anchoring pose since then, if any
+        self._laser_pose: NDArray[np.float64] | None = None  # pose of a laser record not yet
+        # followed by an ODOM line (the next ODOM may be its re-anchoring line)
+
+    def events(self, f: TextIO) -> Iterator[Event]:
+        path = self.source.path
+        emitted = 0
+        number = 0
+        try:
+            for number, line in enumerate(f, start=1):
+                tokens = line.split()
+                if not tokens or tokens[0].startswith("#"):
+                    continue
+                try:
+                    produced = self._record(tokens, number)
+                except _BadRecord as err:
+                    self._warn(f"line {number}: {tokens[0][:20]} record skipped: {err}")
+                    continue
+                if produced is None:
+                    continue
+                self.stats.records += 1
+                for event in produced:
+                    self._check_order(event.t)
+                    emitted += 1
+                    yield event
+        except (OSError, EOFError) as err:  # a truncated or corrupt gzip stream
+            self._warn(f"line {number + 1}: stream ends early ({err}); the rest is lost")
+        hidden = len(self.stats.warnings) and self.stats.skipped - LOGGED_WARNINGS
+        if hidden > 0:
+            log.warning("%s: %d more bad records not shown", path, hidden)
+        if emitted == 0:
+            raise LogError(
+                path, f"no usable record ({number} lines read, {self.stats.skipped} bad records)"
+            )
+
+    def _warn(self, message: str) -> None:
+        self.stats.warn(message)
+        if self.stats.skipped <= LOGGED_WARNINGS:
+            log.warning("%s: %s", self.source.path, message)
+
+    def _check_order(self, t: float) -> None:
+        if self._last_t is not None and t < self._last_t:
+            self.stats.backwards_timestamps += 1
+        self._last_t = t
+
+    # -- records --------------------------------------------------------------------------------
+
+    def _record(self, tokens: list[str], number: int) -> list[Event] | None:
+        """Events of one record; [] for a record that is used but emits nothing (an anchor);
+        None for a record type that is not used."""
+        kind = tokens[0]
+        if kind == "ODOM":
+            return self._odom(tokens)
+        if kind == "FLASER":
+            return self._flaser(tokens, number)
+        if kind == "ROBOTLASER1":
+            return self._robotlaser1(tokens, number)
+        if kind == "TRUEPOS":
+            return self._truepos(tokens)
+        if kind not in _KNOWN_RECORDS and not _looks_like_record_type(kind):
+            raise _BadRecord("not a CARMEN record")
+        return None
+
+    def _odom(self, tokens: list[str]) -> list[Event]:
+        _need(tokens, 9, "ODOM")
+        pose = _pose(tokens, 1)
+        if not self.corrected:
+            return [Odometry(_time(tokens[7]), *pose.tolist())]
+        laser_pose, self._laser_pose = self._laser_pose, None
+        if laser_pose is not None and np.array_equal(pose, laser_pose):
+            # The re-anchoring line right after a laser record repeats its corrected pose. Its
+            # timestamp is usually 0 but sometimes uninitialised memory (1e-42, 1.13, −0.96), so
+            # it is recognised by the repeated pose and its timestamp is ignored.
+            self._anchor = pose
+            return []
+        t = _time(tokens[7])
+        if t == 0.0:
+            self._anchor = pose  # a re-anchoring line: the reference pose, not motion
+            return []
+        if self._raw is None:
+            raw = pose
+        else:
+            base = self._anchor if self._anchor is not None else self._prev_logged
+            raw = compose(self._raw, relative(base, pose))
+        self._raw, self._prev_logged, self._anchor = raw, pose, None
+        return [Odometry(t, *raw.tolist())]
+
+    def _flaser(self, tokens: list[str], number: int) -> list[Event]:
+        n = _count(tokens[1], "beam count")
+        _need(tokens, 2 + n + 8, f"FLASER with {n} beams")
+        ranges = _ranges(tokens[2 : 2 + n])
+        pose = _pose(tokens, 2 + n)
+        odom = _pose(tokens, 2 + n + 3)
+        t = _time(tokens[2 + n + 6])
+        angles = self._angles.get(n)
+        if angles is None:
+            angles = self._angles[n] = flaser_angles(n, self.source.spacing)
+        return self._laser_events(
+            t, ranges, angles, self.source.no_return_range, pose, odom, number
+        )
+
+    def _robotlaser1(self, tokens: list[str], number: int) -> list[Event]:
+        _need(tokens, 10, "ROBOTLASER1")
+        start, fov, resolution, max_range = (_number(v) for v in tokens[2:6])
+        n = _count(tokens[8], "beam count")
+        _need(tokens, 10 + n, f"ROBOTLASER1 with {n} beams")
+        m = _count(tokens[9 + n], "remission count")
+        k = 10 + n + m  # first field after the remissions
+        _need(tokens, k + 13, f"ROBOTLASER1 with {n} beams and {m} remissions")
+        ranges = _ranges(tokens[9 : 9 + n])
+        robot = _pose(tokens, k + 3)
+        t = _time(tokens[k + 11])
+        angles = start + resolution * np.arange(n)
+        if n > 1 and abs(angles[-1] - start - fov) > resolution + 1e-6:
+            raise _BadRecord(f"field of view {fov:g} disagrees with {n} beams × {resolution:g}")
+        limit = min(max_range, self.source.no_return_range) if max_range > 0 else None
+        return self._laser_events(t, ranges, angles, limit, robot, robot, number)
+
+    def _laser_events(
+        self,
+        t: float,
+        ranges: NDArray[np.float64],
+        angles: NDArray[np.float64],
+        max_range: float | None,
+        pose: NDArray[np.float64],
+        odom: NDArray[np.float64],
+        number: int,
+    ) -> list[Event]:
+        reference = tuple(pose.tolist()) if self.corrected else None
+        self._laser_pose = pose
+        scan = Scan(
+            t,
+            ranges,
+            angles,
+            max_range=self.source.no_return_range if max_range is None else max_range,
+            reference=reference,
+            line=number,
+        )
+        if self.laser_odometry:
+            return [Odometry(t, *odom.tolist()), scan]
+        return [scan]
+
+    def _truepos(self, tokens: list[str]) -> list[Event]:
+        _need(tokens, 9, "TRUEPOS")
+        pose = _pose(tokens, 1)
+        return [Truth(_time(tokens[7]), *pose.tolist())]
+
+
+# -- field parsing -------------------------------------------------------------------------------
+
+
+def _looks_like_record_type(token: str) -> bool:
+    # Unknown CARMEN record types are upper-case identifiers (skipped silently); anything else is
+    # a corrupt line (reported).
+    return token.isascii() and token.isupper() and token.replace("_", "").isalnum()
+
+
+def _need(tokens: list[str], count: int, what: str) -> None:
+    if len(tokens) < count:
+        raise _BadRecord(f"{what} needs {count} fields, found {len(tokens)} (truncated?)")
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise _BadRecord(f"non-numeric field {text[:20]!r}") from None
+    if not math.isfinite(value):
+        raise _BadRecord(f"non-finite field {text!r}")
+    return value
+
+
+def _count(text: str, what: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise _BadRecord(f"{what} {text[:20]!r} is not an integer") from None
+    if value < 0 or value > 100_000:
+        raise _BadRecord(f"{what} {value} out of range")
+    return value
+
+
+def _time(text: str) -> float:
+    value = _number(text)
+    if value < 0:
+        raise _BadRecord(f"negative timestamp {value}")
+    return value
+
+
+def _pose(tokens: list[str], start: int) -> NDArray[np.float64]:
+    try:
+        pose = np.array(tokens[start : start + 3], dtype=float)
+    except ValueError:
+        raise _BadRecord(f"non-numeric pose {' '.join(tokens[start : start + 3])[:40]!r}") from None
+    if not np.isfinite(pose).all():
+        raise _BadRecord(f"non-finite pose {' '.join(tokens[start : start + 3])!r}")
+    return pose
+
+
+def _ranges(fields: list[str]) -> NDArray[np.float64]:
+    try:
+        ranges = np.array(fields, dtype=float)
+    except ValueError:
+        raise _BadRecord("non-numeric range") from None
+    # +inf is a legitimate "no return" in converted logs; NaN or a negative range is corruption.
+    if np.isnan(ranges).any() or (ranges < 0).any():
+        raise _BadRecord("NaN or negative range")
+    return ranges

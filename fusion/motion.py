@@ -1,0 +1,177 @@
+"""Odometry motion model: the increment between two odometry readings and its noise.
+
+The odometry frame is arbitrary (real logs start anywhere), so only increments matter: the motion
+δ = (⊖o₁) ⊕ o₂ from one reading to the next, expressed in the robot frame at the first one.
+
+Noise follows the usual α₁…α₄ odometry model: δ is split into a first rotation, a translation and
+a second rotation (rot1, trans, rot2), each disturbed independently —
+
+* rotation noise from rotation (α₁) and from translation (α₂),
+* translation noise from translation (α₃) and from rotation (α₄),
+
+with one deliberate change: the *variances* grow linearly with the amount travelled (a random walk,
+σ² = α²·|amount|) instead of quadratically. With the quadratic form the accumulated noise over a
+path depends on the odometry rate (at 50 Hz it is √50 times smaller than at 1 Hz), and splitting
+one increment in two — which the tracker does when it applies a measurement between two odometry
+readings — would silently remove process noise. With the linear form an α is simply the standard
+deviation accrued over one metre or one radian, whatever the rate. Small isotropic floor terms,
+also proportional to the motion, keep Q full rank (a turn on the spot otherwise has no lateral
+noise). Zero motion gives Q = 0: a robot standing still does not grow uncertain.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from houghloc.geometry import compose, relative, wrap_angle
+
+# Below this, an increment is treated as exactly zero (a reading repeated by the driver).
+_ZERO_MOTION = 1e-12
+
+
+class OdometryMotionConfig(BaseModel):
+    """Odometry noise and plausibility limits. Units: metres, radians, seconds."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    alpha1: float = Field(0.05, ge=0, description="rotation noise from rotation, rad per √rad")
+    alpha2: float = Field(0.01, ge=0, description="rotation noise from translation, rad per √m")
+    alpha3: float = Field(0.05, ge=0, description="translation noise from translation, m per √m")
+    alpha4: float = Field(0.01, ge=0, description="translation noise from rotation, m per √rad")
+    floor_xy: float = Field(
+        0.003, ge=0, description="isotropic position noise, m per √(m + rad) travelled"
+    )
+    floor_theta: float = Field(
+        0.003, ge=0, description="heading noise, rad per √(m + rad) travelled"
+    )
+    heading_min_translation: float = Field(
+        0.01,
+        ge=0,
+        description="below this translation the direction of travel is undefined: rot1 = 0",
+    )
+    max_speed: float = Field(2.0, gt=0, description="fastest plausible translation, m/s")
+    max_turn_rate: float = Field(3.0, gt=0, description="fastest plausible rotation, rad/s")
+    jump_margin: float = Field(2.0, ge=1, description="tolerance factor on the limits")
+    jump_min_dt: float = Field(
+        0.05, gt=0, description="shorter intervals are judged as this long (timestamp jitter)"
+    )
+
+
+def increment(odom_prev: ArrayLike, odom_next: ArrayLike) -> NDArray[np.float64]:
+    """The motion δ = (⊖prev) ⊕ next, in the robot frame at ``odom_prev``.
+
+    Components that are only rounding (far from the odometry's origin, ⊖prev ⊕ prev is not
+    exactly zero) are set to zero, so a robot standing still moves and spreads by exactly nothing.
+    """
+    delta = relative(odom_prev, odom_next)
+    delta[np.abs(delta) < _ZERO_MOTION] = 0.0
+    return delta
+
+
+def interpolate(a: ArrayLike, b: ArrayLike, s: float) -> NDArray[np.float64]:
+    """The pose a fraction ``s`` ∈ [0, 1] of the way from a to b along the SE(2) geodesic.
+
+    The geodesic is the constant-twist path a ⊕ exp(s·log(δ)): exactly the arc a differential
+    drive follows at constant wheel speeds, and consistent under subdivision (interpolating
+    between interpolated poses lands on the same path).
+    """
+    dx, dy, dth = relative(a, b)
+    # log: the twist (v, ω) whose exp is δ; V(θ) maps the twist's translation to δ's.
+    if abs(dth) < 1e-9:
+        vx, vy = dx, dy
+    else:
+        sin_t, one_minus_cos = math.sin(dth), 1.0 - math.cos(dth)
+        det = (sin_t * sin_t + one_minus_cos * one_minus_cos) / (dth * dth)
+        vx = (sin_t * dx + one_minus_cos * dy) / (dth * det)
+        vy = (-one_minus_cos * dx + sin_t * dy) / (dth * det)
+    th = s * dth
+    if abs(th) < 1e-9:
+        step = (s * vx, s * vy, th)
+    else:
+        sin_t, one_minus_cos = math.sin(th), 1.0 - math.cos(th)
+        step = (
+            (sin_t * s * vx - one_minus_cos * s * vy) / th,
+            (one_minus_cos * s * vx + sin_t * s * vy) / th,
+            th,
+        )
+    return compose(a, step)
+
+
+class OdometryMotionModel:
+    """Noise of odometry increments and detection of implausible ones (jumps)."""
+
+    def __init__(self, config: OdometryMotionConfig | None = None) -> None:
+        self.config = config or OdometryMotionConfig()
+
+    def noise(self, delta: ArrayLike) -> NDArray[np.float64]:
+        """Q: the 3×3 covariance of the increment δ = (dx, dy, dθ), in the robot frame.
+
+        δ is decomposed into (rot1, trans, rot2), each gets an independent variance from the
+        α's (linear in the amounts), and Q = J diag(σ²) Jᵀ with J = ∂δ/∂(rot1, trans, rot2),
+        plus the floor terms. Backward driving is handled as a negative translation along the
+        heading (not as a half turn, which would create a large spurious rotation noise).
+        """
+        c = self.config
+        dx, dy, dth = (float(v) for v in delta)
+        trans = math.hypot(dx, dy)
+        if trans < _ZERO_MOTION and abs(dth) < _ZERO_MOTION:
+            return np.zeros((3, 3))
+        if trans < c.heading_min_translation:
+            rot1, signed_trans = 0.0, trans
+        else:
+            rot1, signed_trans = math.atan2(dy, dx), trans
+            if abs(rot1) > math.pi / 2:  # driving backwards
+                rot1, signed_trans = float(wrap_angle(rot1 - math.pi)), -trans
+        rot2 = float(wrap_angle(dth - rot1))
+        # Translation's heading noise is split over the two rotations: α₂² per metre in total.
+        var_rot1 = c.alpha1**2 * abs(rot1) + 0.5 * c.alpha2**2 * trans
+        var_trans = c.alpha3**2 * trans + c.alpha4**2 * (abs(rot1) + abs(rot2))
+        var_rot2 = c.alpha1**2 * abs(rot2) + 0.5 * c.alpha2**2 * trans
+        cos1, sin1 = math.cos(rot1), math.sin(rot1)
+        # dx = t cos r1, dy = t sin r1, dθ = r1 + r2
+        jac = np.array(
+            [
+                [-signed_trans * sin1, cos1, 0.0],
+                [signed_trans * cos1, sin1, 0.0],
+                [1.0, 0.0, 1.0],
+            ]
+        )
+        q = (jac * np.array([var_rot1, var_trans, var_rot2])) @ jac.T
+        amount = trans + abs(dth)
+        q[0, 0] += c.floor_xy**2 * amount
+        q[1, 1] += c.floor_xy**2 * amount
+        q[2, 2] += c.floor_theta**2 * amount
+        return q
+
+    def is_jump(self, delta: ArrayLike, dt: float) -> bool:
+        """True when δ is implausible for the interval ``dt``: faster than the limits allow
+        (with the margin), or any motion at all over dt ≤ 0.
+
+        The caller replaces a jump by zero motion with the covariance ``jump_noise(dt)`` and
+        counts it: a jump is a glitch or a reset of the odometry, not the robot's motion.
+        """
+        c = self.config
+        dx, dy, dth = (float(v) for v in delta)
+        trans = math.hypot(dx, dy)
+        if dt <= 0.0:
+            return trans > _ZERO_MOTION or abs(dth) > _ZERO_MOTION
+        dt_eff = max(dt, c.jump_min_dt)
+        return (
+            trans > c.jump_margin * c.max_speed * dt_eff
+            or abs(dth) > c.jump_margin * c.max_turn_rate * dt_eff
+        )
+
+    def jump_noise(self, dt: float) -> NDArray[np.float64]:
+        """Covariance replacing a jump: the robot moved somewhere within its limits during dt.
+
+        σ_x = σ_y = max_speed·dt and σ_θ = max_turn_rate·dt (dt at least ``jump_min_dt``) — a
+        deliberately wide but bounded uncertainty, so the next measurements can pull it back.
+        """
+        c = self.config
+        dt_eff = max(dt, c.jump_min_dt)
+        sigma_xy, sigma_th = c.max_speed * dt_eff, c.max_turn_rate * dt_eff
+        return np.diag([sigma_xy**2, sigma_xy**2, sigma_th**2])

@@ -1,0 +1,236 @@
+"""Writing a simulated run to disk, and reading its camera points back.
+
+``write_run(run, out_dir)`` writes, each file atomically (a temporary file, then ``os.replace``):
+
+``log.carmen``
+    CARMEN text log, one message per line, in time order (odometry first at equal times)::
+
+        ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp
+        FLASER n r1 … rn x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname \
+logger_timestamp
+
+    ``FLASER`` is used for a 180° scanner (beam i at −90° + i·180°/(n−1)); any other field of
+    view is written as::
+
+        ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode \
+n r1 … rn 0 x y theta odom_x odom_y odom_theta tv rv forward_safety_dist side_safety_dist \
+turn_axis ipc_timestamp ipc_hostname logger_timestamp
+
+    (laser_type 3 = simulated, angles in radians, the ``0`` is the number of remission values).
+    Both pose fields carry the odometry pose, as raw logs do; no return = ``max_range``;
+    ``ipc_hostname`` is ``sim``; ``tv``/``rv`` are the odometry's velocities; ``accel`` is 0.
+``gt.tum``
+    Ground truth at every scan and camera capture: ``t x y 0 0 0 qz qw`` (z = 0, quaternion of
+    the heading: qz = sin(θ/2), qw = cos(θ/2)).
+``map.yaml``
+    A copy of the map file.
+``scenario.yaml``
+    The :class:`~fusion.sim.config.ScenarioConfig` with ``map: map.yaml``; ``load_scenario``
+    reads it back and ``simulate`` reproduces the run.
+``camera.points`` (only with a camera)
+    Text, ``#`` starts a comment; per frame, in arrival order::
+
+        POINTS t_capture t_arrival n x1 y1 … xn yn
+        LABELS t_capture n l1 … ln
+
+    points in the robot frame at capture time (metres); labels as in ``fusion.sim.camera``
+    (evaluation only; readers may ignore LABELS lines).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import IO, Literal
+
+import numpy as np
+import yaml
+
+from fusion.events import PointSet, ReadStats
+from fusion.sim.config import ScenarioConfig
+from fusion.sim.poses import heading_quaternion, increments
+from fusion.sim.run import SimRun
+from fusion.sim.world import resolve_map_path
+
+HOSTNAME = "sim"
+LASER_TYPE_SIMULATED = 3
+
+
+def _atomic_write(path: Path, write: Callable[[IO[str]], None]) -> Path:
+    """Write through a temporary file in the same directory, then rename over ``path``: a reader
+    never sees a half-written file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def write_run(run: SimRun, out_dir: str | Path,
+              laser_message: Literal["auto", "FLASER", "ROBOTLASER1"] = "auto"
+              ) -> dict[str, Path]:
+    """Write the run's files (see the module docstring) and return their paths by name."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {
+        "log": _atomic_write(out / "log.carmen", lambda f: _write_carmen(run, f, laser_message)),
+        "gt": _atomic_write(out / "gt.tum", lambda f: _write_tum(run, f)),
+        "map": _atomic_write(out / "map.yaml",
+                             lambda f: f.write(run.map_path.read_text(encoding="utf-8"))),
+        "scenario": _atomic_write(out / "scenario.yaml", lambda f: _write_scenario(run, f)),
+    }
+    if run.config.camera is not None:
+        paths["camera"] = _atomic_write(out / "camera.points", lambda f: _write_points(run, f))
+    return paths
+
+
+# ---------------------------------------------------------------------------------- CARMEN
+def _odom_velocities(run: SimRun) -> tuple[np.ndarray, np.ndarray]:
+    """(tv, rv) of each odometry record from the increment that ends at it (0 for the first)."""
+    inc = increments(run.odom_pose)
+    dt = np.diff(run.odom_t)
+    tv = np.concatenate(([0.0], inc[:, 0] / dt))
+    rv = np.concatenate(([0.0], inc[:, 2] / dt))
+    return tv, rv
+
+
+def _write_carmen(run: SimRun, f: IO[str], laser_message: str) -> None:
+    cfg = run.config
+    f.write("# CARMEN Logfile\n# file format is one message per line\n")
+    f.write(f"# simulated by fusion.sim: scenario {cfg.name!r}, seed {cfg.seed}\n")
+    f.write("# ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp\n")
+    tv, rv = _odom_velocities(run)
+    odom_lines = [
+        f"ODOM {x:.6f} {y:.6f} {th:.6f} {v:.6f} {w:.6f} 0.000000 {t:.6f} {HOSTNAME} {t:.6f}\n"
+        for (x, y, th), v, w, t in zip(run.odom_pose.tolist(), tv.tolist(), rv.tolist(),
+                                       run.odom_t.tolist(), strict=True)
+    ]
+    laser_lines: list[str] = []
+    if cfg.laser is not None and len(run.scan_t):
+        fov = math.radians(cfg.laser.fov_deg)
+        use_flaser = (laser_message == "FLASER"
+                      or (laser_message == "auto" and math.isclose(cfg.laser.fov_deg, 180.0)))
+        row_fmt = " ".join(["%.3f"] * len(run.angles))
+        k_odom = np.clip(np.searchsorted(run.odom_t, run.scan_t), 0, len(run.odom_t) - 1)
+        if use_flaser:
+            f.write("# FLASER n r1 ... rn x y theta odom_x odom_y odom_theta "
+                    "ipc_timestamp ipc_hostname logger_timestamp\n")
+        else:
+            f.write("# ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy "
+                    "remission_mode n r1 ... rn 0 x y theta odom_x odom_y odom_theta tv rv "
+                    "forward_safety_dist side_safety_dist turn_axis ipc_timestamp ipc_hostname "
+                    "logger_timestamp\n")
+        head = (f"{LASER_TYPE_SIMULATED} {run.angles[0]:.6f} {fov:.6f} "
+                f"{fov / (len(run.angles) - 1):.6f} {cfg.laser.max_range:.3f} "
+                f"{cfg.laser.sigma:.3f} 0")
+        for k, t in enumerate(run.scan_t.tolist()):
+            ranges = row_fmt % tuple(run.ranges[k].tolist())
+            x, y, th = run.scan_odom[k]
+            pose = f"{x:.6f} {y:.6f} {th:.6f}"
+            if use_flaser:
+                laser_lines.append(f"FLASER {len(run.angles)} {ranges} {pose} {pose} "
+                                   f"{t:.6f} {HOSTNAME} {t:.6f}\n")
+            else:
+                j = k_odom[k]
+                laser_lines.append(
+                    f"ROBOTLASER1 {head} {len(run.angles)} {ranges} 0 {pose} {pose} "
+                    f"{tv[j]:.6f} {rv[j]:.6f} 0.000 0.000 0.000 {t:.6f} {HOSTNAME} {t:.6f}\n")
+    # Merge by time, odometry first at equal times (a localizer predicts before it corrects).
+    times = np.concatenate((run.odom_t, run.scan_t[: len(laser_lines)]))
+    kinds = np.concatenate((np.zeros(len(odom_lines)), np.ones(len(laser_lines))))
+    lines = odom_lines + laser_lines
+    for i in np.lexsort((kinds, times)).tolist():
+        f.write(lines[i])
+
+
+# ---------------------------------------------------------------------------------- TUM
+def _write_tum(run: SimRun, f: IO[str]) -> None:
+    truth = run.truth
+    qz, qw = heading_quaternion(truth[:, 2])
+    f.write("# ground truth: t x y z qx qy qz qw\n")
+    for t, (x, y, _), z, w in zip(run.truth_t.tolist(), truth.tolist(), qz.tolist(), qw.tolist(),
+                                  strict=True):
+        f.write(f"{t:.6f} {x:.6f} {y:.6f} 0 0 0 {z:.9f} {w:.9f}\n")
+
+
+# ---------------------------------------------------------------------------------- scenario
+def _write_scenario(run: SimRun, f: IO[str]) -> None:
+    data = run.config.model_dump(mode="json")
+    data["map"] = "map.yaml"
+    f.write("# houghloc simulated scenario; reproduce with fusion.sim: "
+            "simulate(load_scenario(this file))\n")
+    yaml.safe_dump(data, f, sort_keys=False, width=100)
+
+
+def load_scenario(path: str | Path) -> ScenarioConfig:
+    """Read a scenario YAML; a relative ``map`` is resolved against the file's directory first
+    (then the working directory and ``configs/maps``) and stored as an absolute path."""
+    path = Path(path)
+    raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    if not isinstance(raw, dict):
+        raise ValueError(f"scenario {path}: expected a mapping, got {type(raw).__name__}")
+    cfg = ScenarioConfig.model_validate(raw)
+    map_path = resolve_map_path(cfg.map, base=path.parent)
+    return cfg.model_copy(update={"map": str(map_path)})
+
+
+# ---------------------------------------------------------------------------------- camera
+def _write_points(run: SimRun, f: IO[str]) -> None:
+    f.write("# houghloc camera points: floor points in the robot frame at capture time (m)\n")
+    f.write("# POINTS t_capture t_arrival n x1 y1 ... xn yn\n# LABELS t_capture n l1 ... ln\n")
+    for k in np.argsort(run.cam_arrival, kind="stable").tolist():
+        pts, lab = run.cam_points[k], run.cam_labels[k]
+        t, a = float(run.cam_t[k]), float(run.cam_arrival[k])
+        xy = " ".join(["%.4f"] * pts.size) % tuple(pts.ravel().tolist())
+        f.write(f"POINTS {t:.6f} {a:.6f} {len(pts)}{' ' if len(pts) else ''}{xy}\n")
+        ls = " ".join(str(v) for v in lab.tolist())
+        f.write(f"LABELS {t:.6f} {len(lab)}{' ' if len(lab) else ''}{ls}\n")
+
+
+def read_camera_points(path: str | Path, stats: ReadStats | None = None,
+                       sensor: str = "camera") -> Iterator[PointSet]:
+    """Yield the ``POINTS`` records of a ``camera.points`` file as :class:`PointSet` events
+    (with ``arrival`` and the line number). A bad record is skipped with a warning that names the
+    file and line (``warnings.warn``, and ``stats.warn`` if given); a missing file raises
+    ``FileNotFoundError``."""
+    path = Path(path)
+
+    def bad(lineno: int, why: str) -> None:
+        msg = f"{path}:{lineno}: skipped camera record: {why}"
+        warnings.warn(msg, stacklevel=3)
+        if stats is not None:
+            stats.warn(msg)
+
+    with open(path, encoding="utf-8") as f:
+        for lineno, line in enumerate(f, start=1):
+            fields = line.split()
+            if not fields or fields[0].startswith("#") or fields[0] == "LABELS":
+                continue
+            if fields[0] != "POINTS":
+                bad(lineno, f"unknown record type {fields[0]!r}")
+                continue
+            try:
+                t, arrival = float(fields[1]), float(fields[2])
+                n = int(fields[3])
+                values = np.array(fields[4:], dtype=float)
+            except (IndexError, ValueError):
+                bad(lineno, "expected 'POINTS t_capture t_arrival n x1 y1 ...' with numbers")
+                continue
+            if n < 0 or len(values) != 2 * n:
+                bad(lineno, f"n = {n} but {len(values)} coordinates (expected {2 * max(n, 0)})")
+                continue
+            if not (math.isfinite(t) and math.isfinite(arrival) and np.isfinite(values).all()):
+                bad(lineno, "non-finite value")
+                continue
+            if stats is not None:
+                stats.records += 1
+            yield PointSet(t, values.reshape(n, 2), sensor=sensor, arrival=arrival, line=lineno)

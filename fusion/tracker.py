@@ -1,0 +1,380 @@
+"""Time ordering and delayed measurements around the pose EKF.
+
+The tracker keeps a short history of nodes, oldest first. Each node is a time with its odometry
+pose, the posterior (x, P) at that time, the increment (and its noise) that led to it from the
+previous node, and the pose measurements applied there. Odometry readings make nodes; so does a
+measurement taken between two readings, at its own time, with the odometry interpolated there.
+
+* A measurement newer than every node is applied at once to the newest estimate: there is no
+  extrapolation beyond the last odometry (the robot is assumed not to have moved since). It is
+  kept as a *provisional* node, and when the next odometry arrives the node gets its real
+  (interpolated) odometry and the short tail is re-filtered — so the result is the same as if
+  the odometry had been there first.
+* A measurement inside the history is applied at its own time, and every node after it is
+  re-filtered: the stored increments are predicted again and the stored measurements re-applied
+  (re-gated too, as an in-order run would have done). The cost is O(nodes after t).
+* A measurement older than the history is dropped and counted.
+
+So applying a measurement late gives the same estimate as applying it on time. Counters report
+each measurement's first decision; a re-filter may later flip a gate decision without counting.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from bisect import bisect_right
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fusion.ekf import PoseEKF, UpdateOutcome
+from fusion.motion import OdometryMotionConfig, OdometryMotionModel, increment, interpolate
+from houghloc.geometry import wrap_angle
+
+log = logging.getLogger(__name__)
+
+_ZERO3 = np.zeros(3)
+_ZERO33 = np.zeros((3, 3))
+
+
+@dataclass
+class TrackerCounts:
+    """What the tracker did, for metrics and the ambiguity manager.
+
+    ``delayed``: measurements applied in the past through the history (accepted or not);
+    ``invalid``: inputs rejected as non-finite, or whose innovation covariance was singular.
+    """
+
+    predictions: int = 0
+    updates: int = 0
+    rejected: int = 0
+    delayed: int = 0
+    dropped: int = 0
+    odometry_jumps: int = 0
+    odometry_backwards: int = 0
+    invalid: int = 0
+
+
+@dataclass(slots=True)
+class _Measurement:
+    z: NDArray[np.float64]
+    r: NDArray[np.float64]
+    basis: NDArray[np.float64] | None
+
+
+@dataclass(slots=True)
+class _Node:
+    t: float
+    odom: NDArray[np.float64]
+    x: NDArray[np.float64]
+    p: NDArray[np.float64]
+    step: NDArray[np.float64]  # increment from the previous node's odometry, robot frame
+    step_q: NDArray[np.float64]  # its covariance
+    jump: bool = False  # the step replaced an implausible odometry jump by zero motion
+    measurements: list[_Measurement] = field(default_factory=list)
+
+
+def _node_time(node: _Node) -> float:
+    return node.t
+
+
+class PoseTracker:
+    """The pose estimate over time: odometry predictions and (possibly late) pose updates."""
+
+    def __init__(
+        self,
+        initial_pose: ArrayLike,
+        initial_cov: ArrayLike,
+        motion_cfg: OdometryMotionConfig | None = None,
+        history_seconds: float = 2.0,
+        gate_prob: float | None = 0.999,
+        delayed_updates: bool = True,
+    ) -> None:
+        if not history_seconds > 0:
+            raise ValueError(f"history_seconds must be positive, got {history_seconds}")
+        self.motion = OdometryMotionModel(motion_cfg)
+        self.history_seconds = float(history_seconds)
+        self.delayed_updates = delayed_updates
+        self.counts = TrackerCounts()
+        x, p = _checked_state(initial_pose, initial_cov)
+        self._ekf = PoseEKF(x, p, gate_prob)  # one engine, reused for every step
+        self._x, self._p = x, p  # the estimate while no odometry has arrived
+        self._nodes: deque[_Node] = deque()
+        self._tail = 0  # provisional nodes: measurements newer than the newest odometry
+
+    # ----------------------------------------------------------------- reading the estimate
+    @property
+    def pose(self) -> NDArray[np.float64]:
+        """The newest estimate (x, y, θ) in ``map`` (a copy)."""
+        return (self._nodes[-1].x if self._nodes else self._x).copy()
+
+    @property
+    def cov(self) -> NDArray[np.float64]:
+        """The newest covariance P (a copy)."""
+        return (self._nodes[-1].p if self._nodes else self._p).copy()
+
+    @property
+    def time(self) -> float | None:
+        """Time of the newest estimate; None before the first odometry."""
+        return self._nodes[-1].t if self._nodes else None
+
+    def pose_at(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """(x, P) at time t: the node at or before t, predicted with the odometry interpolated
+        at t. Newer than the newest node: the newest estimate (no extrapolation). Older than
+        the history: None. Before any odometry: the current estimate, whatever t.
+        """
+        if not self._nodes:
+            return self._x.copy(), self._p.copy()
+        if not math.isfinite(t) or t < self._nodes[0].t:
+            return None
+        j = bisect_right(self._nodes, t, key=_node_time) - 1
+        node = self._nodes[j]
+        if j == len(self._nodes) - 1 or t == node.t:
+            return node.x.copy(), node.p.copy()
+        _, step, q = self._split(node, self._nodes[j + 1], t)
+        self._load(node)
+        self._ekf.predict_odometry(step, q)
+        return self._ekf.x.copy(), self._ekf.P.copy()
+
+    # ---------------------------------------------------------------------------- odometry
+    def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
+        """Predict with the increment since the previous odometry reading (the first one only
+        anchors the odometry frame). Backwards timestamps are ignored and counted; a repeated
+        reading is a no-op; an implausible increment is replaced by zero motion with the jump
+        covariance and counted.
+        """
+        odom = np.array([x, y, theta], dtype=float)
+        if not (math.isfinite(t) and np.isfinite(odom).all()):
+            self._invalid(f"non-finite odometry at t={t}: {odom}")
+            return
+        if not self._nodes:
+            self._nodes.append(_Node(t, odom, self._x, self._p, _ZERO3, _ZERO33))
+            return
+        lo_index = len(self._nodes) - 1 - self._tail
+        lo = self._nodes[lo_index]
+        if t < lo.t:
+            self.counts.odometry_backwards += 1
+            return
+        if t == lo.t and np.array_equal(odom, lo.odom):
+            return
+        dt = t - lo.t
+        total = increment(lo.odom, odom)
+        jump = self.motion.is_jump(total, dt)
+        self.counts.predictions += 1
+        self.counts.odometry_jumps += int(jump)
+        if self._tail == 0:  # the common case: append and predict
+            if jump:
+                step, q = _ZERO3, self.motion.jump_noise(dt)
+            else:
+                step, q = total, self.motion.noise(total)
+            node = _Node(t, odom, lo.x, lo.p, step, q, jump)
+            self._propagate(lo, node)
+            self._nodes.append(node)
+        else:
+            self._absorb_provisional(lo_index, t, odom, dt, jump)
+        self._trim()
+
+    def _absorb_provisional(
+        self, lo_index: int, t: float, odom: NDArray[np.float64], dt: float, jump: bool
+    ) -> None:
+        """Insert the odometry reading among the provisional nodes: those up to t get their
+        odometry interpolated (zero motion across a jump), those after it stay provisional at
+        the new reading; then re-filter from the first of them.
+        """
+        lo = self._nodes[lo_index]
+        tail = [self._nodes.pop() for _ in range(self._tail)][::-1]
+        before = [n for n in tail if n.t <= t]
+        after = [n for n in tail if n.t > t]
+        for n in before:
+            n.odom = lo.odom if jump else interpolate(lo.odom, odom, (n.t - lo.t) / dt)
+        for n in after:
+            n.odom = odom
+        reading = _Node(t, odom, lo.x, lo.p, _ZERO3, _ZERO33, jump)
+        prev = lo
+        for n in [*before, reading, *after]:
+            if n is reading and jump:
+                n.step, n.step_q = _ZERO3, self.motion.jump_noise(dt)
+            else:
+                n.step = increment(prev.odom, n.odom)
+                n.step_q = self.motion.noise(n.step)
+            self._nodes.append(n)
+            prev = n
+        self._tail = len(after)
+        self._refilter(lo_index + 1)
+
+    # ------------------------------------------------------------------------- measurements
+    def apply(
+        self,
+        t: float,
+        z: ArrayLike,
+        r: ArrayLike,
+        basis: ArrayLike | None = None,
+    ) -> UpdateOutcome:
+        """Update with an absolute pose z (map frame, taken at time t) of covariance R (3×3),
+        optionally only along the orthonormal columns of ``basis`` (3×k).
+
+        t at or after the newest node: applied now. Inside the history: applied at t, later
+        nodes re-filtered (``counts.delayed``), unless ``delayed_updates`` is False, in which
+        case it is applied now as if just taken. Older than the history: dropped.
+        """
+        meas = self._checked_measurement(t, z, r, basis)
+        if meas is None:
+            return UpdateOutcome(False, 0.0, 0, status="invalid")
+        if not self._nodes:
+            self._ekf.x, self._ekf.P = self._x, self._p
+            outcome = self._update(meas)
+            self._x, self._p = self._ekf.x, self._ekf.P
+            return outcome
+        newest = self._nodes[-1]
+        if not self.delayed_updates:
+            t = max(t, newest.t)
+        if t >= newest.t:
+            return self._apply_now(t, meas)
+        if t < self._nodes[0].t:
+            self.counts.dropped += 1
+            return UpdateOutcome(False, 0.0, 0, status="dropped")
+        self.counts.delayed += 1
+        j = bisect_right(self._nodes, t, key=_node_time) - 1
+        node = self._nodes[j]
+        if t == node.t:
+            self._load(node)
+            outcome = self._attach(node, meas)
+            self._refilter(j + 1)
+            return outcome
+        nxt = self._nodes[j + 1]
+        odom, step, q = self._split(node, nxt, t)
+        if not nxt.jump:  # a jump stays a jump: its zero step and wide noise are kept
+            nxt.step = increment(odom, nxt.odom)
+            nxt.step_q = self.motion.noise(nxt.step)
+        inserted = _Node(t, odom, node.x, node.p, step, q)
+        self._propagate(node, inserted)
+        outcome = self._attach(inserted, meas)
+        self._nodes.insert(j + 1, inserted)
+        if j >= len(self._nodes) - 2 - self._tail:  # it landed after the newest odometry
+            self._tail += 1
+        self._refilter(j + 2)
+        return outcome
+
+    def _apply_now(self, t: float, meas: _Measurement) -> UpdateOutcome:
+        newest = self._nodes[-1]
+        if t == newest.t:
+            self._load(newest)
+            return self._attach(newest, meas)
+        # Newer than any odometry: assume no motion since; fixed when the odometry arrives.
+        node = _Node(t, newest.odom, newest.x, newest.p, _ZERO3, _ZERO33)
+        self._load(node)
+        outcome = self._attach(node, meas)
+        self._nodes.append(node)
+        self._tail += 1
+        return outcome
+
+    def reset(self, pose: ArrayLike, cov: ArrayLike) -> None:
+        """Re-initialise (global relocalisation): the estimate at the newest odometry time
+        becomes (pose, cov); the history before it is forgotten, so older measurements are
+        dropped. Counters are kept.
+        """
+        x, p = _checked_state(pose, cov)
+        if not self._nodes:
+            self._x, self._p = x, p
+            return
+        lo = self._nodes[len(self._nodes) - 1 - self._tail]
+        self._nodes = deque([_Node(lo.t, lo.odom, x, p, _ZERO3, _ZERO33)])
+        self._tail = 0
+
+    # ------------------------------------------------------------------------------ helpers
+    def _split(
+        self, node: _Node, nxt: _Node, t: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Odometry at t between two nodes, and the step (and its noise) from ``node`` to it."""
+        if nxt.jump:  # no motion can be interpolated across a jump: it all happens at its end
+            return node.odom, _ZERO3, _ZERO33
+        odom = interpolate(node.odom, nxt.odom, (t - node.t) / (nxt.t - node.t))
+        step = increment(node.odom, odom)
+        return odom, step, self.motion.noise(step)
+
+    def _load(self, node: _Node) -> None:
+        # The engine never modifies these arrays in place (filterpy assigns new ones), so the
+        # node's arrays can be handed over without copies.
+        self._ekf.x, self._ekf.P = node.x, node.p
+
+    def _propagate(self, prev: _Node, node: _Node) -> None:
+        self._load(prev)
+        self._ekf.predict_odometry(node.step, node.step_q)
+        node.x, node.p = self._ekf.x, self._ekf.P
+
+    def _attach(self, node: _Node, meas: _Measurement) -> UpdateOutcome:
+        """Update the loaded engine at ``node`` with ``meas``, store the result and count it."""
+        outcome = self._update(meas)
+        if outcome.status != "invalid":
+            node.measurements.append(meas)
+        node.x, node.p = self._ekf.x, self._ekf.P
+        return outcome
+
+    def _update(self, meas: _Measurement) -> UpdateOutcome:
+        outcome = self._ekf.update_pose(meas.z, meas.r, meas.basis)
+        if outcome.accepted:
+            self.counts.updates += 1
+        elif outcome.status == "rejected":
+            self.counts.rejected += 1
+        else:
+            self._invalid("singular innovation covariance")
+        return outcome
+
+    def _refilter(self, start: int) -> None:
+        """Re-run every node from ``start`` on: predict its stored step, re-apply its
+        measurements (uncounted: they were counted when they arrived).
+        """
+        nodes = self._nodes
+        for i in range(start, len(nodes)):
+            node = nodes[i]
+            self._propagate(nodes[i - 1], node)
+            for meas in node.measurements:
+                self._ekf.update_pose(meas.z, meas.r, meas.basis)
+            node.x, node.p = self._ekf.x, self._ekf.P
+
+    def _trim(self) -> None:
+        """Forget nodes no longer needed to cover ``history_seconds`` before the newest
+        odometry; the oldest kept node is at or before that horizon.
+        """
+        horizon = self._nodes[len(self._nodes) - 1 - self._tail].t - self.history_seconds
+        while len(self._nodes) > 1 and self._nodes[1].t <= horizon:
+            self._nodes.popleft()
+
+    def _invalid(self, message: str) -> None:
+        self.counts.invalid += 1
+        log.warning("pose tracker: %s (ignored, %d so far)", message, self.counts.invalid)
+
+    def _checked_measurement(
+        self, t: float, z: ArrayLike, r: ArrayLike, basis: ArrayLike | None
+    ) -> _Measurement | None:
+        z = np.array(z, dtype=float).reshape(3)
+        r = np.array(r, dtype=float).reshape(3, 3)
+        if not (math.isfinite(t) and np.isfinite(z).all() and np.isfinite(r).all()):
+            self._invalid(f"non-finite pose measurement at t={t}")
+            return None
+        if basis is not None:
+            basis = np.array(basis, dtype=float)
+            if basis.ndim == 1:
+                basis = basis.reshape(3, 1)
+            k = basis.shape[1] if basis.ndim == 2 else 0
+            if basis.shape[0] != 3 or not 1 <= k <= 3:
+                raise ValueError(f"basis must be 3×k with k in 1..3, got shape {basis.shape}")
+            if not np.allclose(basis.T @ basis, np.eye(k), atol=1e-6):
+                raise ValueError("basis columns must be orthonormal")
+        return _Measurement(z, r, basis)
+
+
+def _checked_state(
+    pose: ArrayLike, cov: ArrayLike
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    x = np.array(pose, dtype=float).reshape(3)
+    p = np.array(cov, dtype=float).reshape(3, 3)
+    if not (np.isfinite(x).all() and np.isfinite(p).all()):
+        raise ValueError("initial pose and covariance must be finite")
+    if not np.allclose(p, p.T) or np.linalg.eigvalsh(p).min() < 0:
+        raise ValueError("initial covariance must be symmetric positive semi-definite")
+    x[2] = wrap_angle(x[2])
+    return x, 0.5 * (p + p.T)

@@ -1,0 +1,341 @@
+"""The filter layer: odometry motion model, pose EKF, tracker with delayed measurements."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import chi2
+
+from fusion.ekf import PoseEKF
+from fusion.motion import OdometryMotionConfig, OdometryMotionModel, increment, interpolate
+from fusion.tracker import PoseTracker
+from houghloc.geometry import compose, relative, wrap_angle
+
+# Real odometry frames start anywhere: the CARMEN logs begin here.
+ODOM_ORIGIN = np.array([576.5, 0.1, -2.26])
+P0 = np.diag([0.05**2, 0.05**2, 0.02**2])
+R_SMALL = np.diag([0.01**2, 0.01**2, 0.005**2])
+
+
+def drive(tracker: PoseTracker, twist: tuple[float, float], seconds: float, rate: float = 50.0,
+          t0: float = 0.0, odom0: np.ndarray = ODOM_ORIGIN) -> tuple[float, np.ndarray]:
+    """Feed odometry of a constant (v, ω) for ``seconds``; returns the last (t, odometry pose)."""
+    v, w = twist
+    dt = 1.0 / rate
+    step = np.array([v * dt, 0.0, w * dt]) if abs(w) < 1e-12 else np.array(
+        [v / w * math.sin(w * dt), v / w * (1 - math.cos(w * dt)), w * dt]
+    )
+    odom, t = np.array(odom0, dtype=float), t0
+    tracker.on_odometry(t, *odom)
+    for _ in range(round(seconds * rate)):
+        t += dt
+        odom = compose(odom, step)
+        tracker.on_odometry(t, *odom)
+    return t, odom
+
+
+# ------------------------------------------------------------------------------ motion model
+def test_standing_still_keeps_covariance_unchanged():
+    assert not OdometryMotionModel().noise([0.0, 0.0, 0.0]).any()
+    tracker = PoseTracker([1.0, 2.0, 0.3], P0)
+    drive(tracker, (0.0, 0.0), seconds=3.0)
+    np.testing.assert_array_equal(tracker.cov, P0)
+    np.testing.assert_allclose(tracker.pose, [1.0, 2.0, 0.3], atol=1e-12)
+    assert tracker.counts.predictions == 150
+
+
+def test_covariance_grows_with_distance_and_rotation():
+    traces = []
+    for seconds in (1.0, 2.0, 4.0):
+        tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+        drive(tracker, (0.5, 0.0), seconds)
+        traces.append(np.trace(tracker.cov))
+    assert traces[0] > np.trace(P0) and traces[0] < traces[1] < traces[2]
+    spinning = PoseTracker([0.0, 0.0, 0.0], P0)
+    drive(spinning, (0.0, 1.0), 2.0)
+    assert np.all(np.diag(spinning.cov) > np.diag(P0))
+
+
+def test_noise_does_not_depend_on_the_odometry_rate():
+    # One increment of 1 m or fifty of 2 cm: the same accumulated translation variance.
+    model = OdometryMotionModel()
+    whole = model.noise([1.0, 0.0, 0.0])
+    pieces = 50 * model.noise([0.02, 0.0, 0.0])
+    np.testing.assert_allclose(whole[0, 0], pieces[0, 0], rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(model.noise([0.0, 0.0, 0.5])) > 0)  # turn on the spot
+
+
+def test_backward_driving_is_not_a_half_turn():
+    model = OdometryMotionModel()
+    backward, forward = model.noise([-0.3, 0.0, 0.0]), model.noise([0.3, 0.0, 0.0])
+    np.testing.assert_allclose(np.diag(backward), np.diag(forward))
+    # Only the sign of the heading-lateral correlation differs (a heading error moves the robot
+    # the other way when it reverses).
+    np.testing.assert_allclose(np.abs(backward), np.abs(forward))
+
+
+def test_straight_line_prediction_is_exact_without_noise():
+    quiet = OdometryMotionConfig(alpha1=0, alpha2=0, alpha3=0, alpha4=0, floor_xy=0, floor_theta=0)
+    start = np.array([1.0, 2.0, 0.5])
+    tracker = PoseTracker(start, P0, quiet)
+    drive(tracker, (0.8, 0.0), seconds=2.5)
+    expected = start + [2.0 * math.cos(0.5), 2.0 * math.sin(0.5), 0.0]
+    np.testing.assert_allclose(tracker.pose, expected, atol=1e-9)
+
+
+def test_interpolation_follows_the_arc():
+    a = np.array([1.0, 2.0, 3.0])
+    b = compose(a, [1.0, 0.4, 0.8])
+    np.testing.assert_allclose(interpolate(a, b, 0.0), a, atol=1e-12)
+    np.testing.assert_allclose(interpolate(a, b, 1.0), b, atol=1e-12)
+    # Consistent under subdivision: halfway, then halfway again = three quarters.
+    np.testing.assert_allclose(
+        interpolate(interpolate(a, b, 0.5), b, 0.5), interpolate(a, b, 0.75), atol=1e-12
+    )
+
+
+# --------------------------------------------------------------------------------------- EKF
+@pytest.mark.parametrize("theta, measured", [(math.pi - 0.05, -math.pi + 0.05),
+                                             (-math.pi + 0.05, math.pi - 0.05)])
+def test_update_across_the_wrap_moves_the_short_way(theta, measured):
+    ekf = PoseEKF([0.0, 0.0, theta], np.diag([0.01, 0.01, 0.01]))
+    outcome = ekf.update_pose([0.0, 0.0, measured], np.diag([0.01, 0.01, 0.01]))
+    assert outcome.accepted
+    assert abs(outcome.innovation[2]) == pytest.approx(0.1)
+    # Equal weights: the posterior lies halfway, i.e. on ±π, not near 0.
+    assert abs(wrap_angle(ekf.x[2] - math.pi)) < 1e-9
+    assert -math.pi <= ekf.x[2] < math.pi
+
+
+def test_rank_deficient_update_leaves_the_unobserved_direction_alone():
+    observed = np.array([[1.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).T
+    observed[:, 0] /= math.sqrt(2.0)
+    hidden = np.array([1.0, -1.0, 0.0]) / math.sqrt(2.0)
+    frame = np.column_stack([observed, hidden])
+    prior = frame @ np.diag([0.04, 0.01, 0.09]) @ frame.T  # no correlation with `hidden`
+    ekf = PoseEKF([1.0, 2.0, 0.3], prior)
+    outcome = ekf.update_pose([1.3, 2.1, 0.35], np.diag([0.01, 0.01, 0.001]), basis=observed)
+    assert outcome.accepted and outcome.dof == 2
+    assert hidden @ ekf.P @ hidden == pytest.approx(0.09, rel=1e-12)
+    assert hidden @ ekf.x == pytest.approx(hidden @ [1.0, 2.0, 0.3], abs=1e-12)
+    assert observed[:, 0] @ ekf.P @ observed[:, 0] < 0.04  # the observed ones did shrink
+
+
+def test_nis_gate_rejects_an_outlier_and_accepts_a_consistent_measurement():
+    tracker = PoseTracker([0.0, 0.0, 0.0], R_SMALL)
+    tracker.on_odometry(0.0, *ODOM_ORIGIN)
+    outlier = tracker.apply(0.0, [1.0, 0.0, 0.0], R_SMALL)
+    assert not outlier.accepted and outlier.status == "rejected"
+    assert outlier.nis > chi2.ppf(0.999, 3)
+    np.testing.assert_array_equal(tracker.pose, [0.0, 0.0, 0.0])
+    good = tracker.apply(0.0, [0.01, -0.01, 0.005], R_SMALL)
+    assert good.accepted and good.dof == 3
+    assert tracker.counts.rejected == 1 and tracker.counts.updates == 1
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_covariance_stays_symmetric_positive_definite(seed):
+    rng = np.random.default_rng(seed)
+    tracker = PoseTracker(rng.normal(size=3), np.diag(rng.uniform(1e-6, 1.0, 3)))
+    odom, t = rng.normal(size=3) * 100, 0.0
+    tracker.on_odometry(t, *odom)
+    for _ in range(60):
+        t += rng.uniform(0.001, 0.1)
+        odom = compose(odom, rng.normal(0.0, [0.05, 0.01, 0.1]))
+        tracker.on_odometry(t, *odom)
+        if rng.random() < 0.4:
+            a = rng.normal(size=(3, 3)) * rng.uniform(1e-4, 1.0)
+            r = a @ a.T + 1e-10 * np.eye(3)
+            k = int(rng.integers(1, 4))
+            basis = np.linalg.qr(rng.normal(size=(3, 3)))[0][:, :k]
+            z = tracker.pose + rng.normal(0.0, 0.1, 3)
+            tracker.apply(t - rng.uniform(0.0, 0.5), z, r, basis)
+        p = tracker.cov
+        assert np.isfinite(tracker.pose).all()
+        np.testing.assert_array_equal(p, p.T)
+        assert np.linalg.eigvalsh(p).min() > 0.0
+
+
+# ------------------------------------------------------------------- time and late measurements
+def _odometry_stream(rng, seconds=3.0, rate=50.0):
+    odom, out = ODOM_ORIGIN.copy(), []
+    for i in range(round(seconds * rate) + 1):
+        out.append((i / rate, odom.copy()))
+        odom = compose(odom, [0.02 + rng.normal(0, 0.002), rng.normal(0, 0.001),
+                              0.01 + rng.normal(0, 0.005)])
+    return out
+
+
+def _replay(odometry, measurements, delays, **tracker_args):
+    """Feed odometry and measurements ordered by arrival; measurement i arrives delays[i] late."""
+    events = [(t, 0, i) for i, (t, _) in enumerate(odometry)]
+    events += [(m[0] + d, 1, i) for i, (m, d) in enumerate(zip(measurements, delays, strict=True))]
+    tracker = PoseTracker([2.0, 1.0, 0.5], P0, **tracker_args)
+    outcomes = {}
+    for _, kind, i in sorted(events):
+        if kind == 0:
+            tracker.on_odometry(odometry[i][0], *odometry[i][1])
+        else:
+            outcomes[i] = tracker.apply(*measurements[i])
+    return tracker, outcomes
+
+
+def _measurements(rng, odometry, rate=50.0):
+    """Pose measurements consistent with the odometry (started at the tracker's initial pose)."""
+    r = np.diag([0.03**2, 0.03**2, 0.01**2])
+    along_corridor = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).T
+    out = []
+    for t in (0.2, 0.5, 0.713, 1.0, 1.337, 1.9, 2.21, 2.5):  # on and between odometry stamps
+        i = int(t * rate)
+        odom = interpolate(odometry[i][1], odometry[i + 1][1], t * rate - i)
+        z = compose([2.0, 1.0, 0.5], relative(ODOM_ORIGIN, odom)) + rng.normal(0, 0.03, 3)
+        out.append((t, z, r, along_corridor if t in (0.713, 1.9) else None))
+    out.append((1.5, np.array([9.0, 9.0, 0.0]), r, None))  # an outlier, rejected either way
+    return out
+
+
+def test_late_measurements_give_the_same_estimate_as_in_order_ones():
+    rng = np.random.default_rng(3)
+    odometry = _odometry_stream(rng)
+    measurements = _measurements(rng, odometry)
+    on_time, _ = _replay(odometry, measurements, [0.0] * len(measurements))
+    delays = rng.uniform(0.05, 0.6, len(measurements))
+    late, outcomes = _replay(odometry, measurements, delays)
+    np.testing.assert_allclose(late.pose, on_time.pose, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(late.cov, on_time.cov, rtol=0, atol=1e-12)
+    for t in (2.6, 2.7371, 2.95):
+        for a, b in zip(late.pose_at(t), on_time.pose_at(t), strict=True):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+    assert late.counts.delayed == len(measurements)
+    assert late.counts.updates == on_time.counts.updates == len(measurements) - 1
+    assert outcomes[len(measurements) - 1].status == "rejected"
+
+
+def test_late_measurement_applied_as_if_now_is_worse():
+    # The latency experiment: a robot at 1 m/s, exact measurements 0.3 s late.
+    errors = {}
+    for delayed in (True, False):
+        rng = np.random.default_rng(11)
+        odometry = _odometry_stream(rng, seconds=4.0)
+        truth = {round(t, 6): o for t, o in odometry}
+        tracker = PoseTracker(relative(ODOM_ORIGIN, ODOM_ORIGIN), P0, delayed_updates=delayed)
+        pending, err = [], []
+        for t, odom in odometry:
+            tracker.on_odometry(t, *odom)
+            if round(t * 50) % 5 == 0:  # a measurement every 0.1 s, taken now, arriving later
+                z = relative(ODOM_ORIGIN, truth[round(t, 6)])
+                pending.append((t + 0.3, t, z))
+            while pending and pending[0][0] <= t + 1e-9:
+                _, taken, z = pending.pop(0)
+                tracker.apply(taken, z, R_SMALL)
+            err.append(np.hypot(*(tracker.pose[:2] - relative(ODOM_ORIGIN, odom)[:2])))
+        errors[delayed] = float(np.sqrt(np.mean(np.square(err[50:]))))
+    assert errors[True] < 0.5 * errors[False]
+
+
+def test_measurement_older_than_the_history_is_dropped():
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0, history_seconds=0.5)
+    drive(tracker, (0.5, 0.0), seconds=2.0)
+    before = tracker.pose
+    outcome = tracker.apply(1.0, before, R_SMALL)
+    assert outcome.status == "dropped" and not outcome.accepted
+    assert tracker.counts.dropped == 1
+    np.testing.assert_array_equal(tracker.pose, before)
+    assert tracker.pose_at(1.0) is None
+    assert tracker.pose_at(1.6) is not None
+
+
+def test_pose_at_interpolates_and_never_extrapolates():
+    quiet = OdometryMotionConfig(alpha1=0, alpha2=0, alpha3=0, alpha4=0, floor_xy=0, floor_theta=0)
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0, quiet)
+    t_end, _ = drive(tracker, (1.0, 0.0), seconds=1.0)
+    x, _ = tracker.pose_at(0.505)
+    np.testing.assert_allclose(x, [0.505, 0.0, 0.0], atol=1e-9)
+    x, p = tracker.pose_at(t_end + 5.0)
+    np.testing.assert_allclose(x, tracker.pose)
+    np.testing.assert_allclose(p, tracker.cov)
+
+
+# ----------------------------------------------------------------------- odometry hygiene
+def test_odometry_jump_is_flagged_and_replaced_by_zero_motion():
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+    t, odom = drive(tracker, (0.5, 0.0), seconds=1.0)
+    pose, cov = tracker.pose, tracker.cov
+    tracker.on_odometry(t + 0.02, *(odom + [5.0, 0.0, 0.0]))  # 250 m/s
+    assert tracker.counts.odometry_jumps == 1
+    np.testing.assert_allclose(tracker.pose, pose, atol=1e-12)
+    assert np.all(np.diag(tracker.cov) > np.diag(cov))
+    tracker.on_odometry(t + 0.02, *(odom + [5.0, 0.0, 0.3]))  # same time, other pose
+    assert tracker.counts.odometry_jumps == 2
+    # Afterwards the new odometry frame is followed normally.
+    tracker.on_odometry(t + 0.04, *(odom + [5.0, 0.0, 0.3]))
+    assert tracker.counts.odometry_jumps == 2
+
+
+def test_backwards_duplicate_and_non_finite_inputs():
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+    t, odom = drive(tracker, (0.5, 0.0), seconds=0.5)
+    pose, predictions = tracker.pose, tracker.counts.predictions
+    tracker.on_odometry(t, *odom)  # duplicate
+    tracker.on_odometry(t - 0.1, *(odom + 1.0))  # backwards
+    tracker.on_odometry(t + 0.02, math.nan, 0.0, 0.0)
+    assert tracker.counts.predictions == predictions
+    assert tracker.counts.odometry_backwards == 1 and tracker.counts.invalid == 1
+    bad = [tracker.apply(t, [math.nan, 0, 0], R_SMALL), tracker.apply(t, pose, np.full((3, 3), math.inf))]
+    assert all(o.status == "invalid" for o in bad)
+    assert tracker.counts.invalid == 3
+    np.testing.assert_array_equal(tracker.pose, pose)
+
+
+def test_reset_replaces_the_estimate_and_forgets_the_past():
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+    t, odom = drive(tracker, (0.5, 0.0), seconds=1.0)
+    tracker.reset([5.0, 5.0, 1.0], np.eye(3) * 0.1)
+    np.testing.assert_array_equal(tracker.pose, [5.0, 5.0, 1.0])
+    assert tracker.apply(t - 0.5, [5.0, 5.0, 1.0], R_SMALL).status == "dropped"
+    tracker.on_odometry(t + 0.02, *compose(odom, [0.01, 0.0, 0.0]))
+    np.testing.assert_allclose(tracker.pose, compose([5.0, 5.0, 1.0], [0.01, 0, 0]), atol=1e-12)
+
+
+# ------------------------------------------------------------------------------- consistency
+def test_monte_carlo_nees_is_inside_the_95_percent_band():
+    """Odometry reports a nominal increment δ; the true motion is δ + w, w ~ N(0, Q(δ)) — the
+    model's own statement about the robot — and pose measurements are drawn from R.
+    """
+    runs, steps, dt = 50, 150, 0.1
+    model = OdometryMotionModel()
+    r = np.diag([0.05**2, 0.05**2, 0.03**2])
+    rng = np.random.default_rng(2024)
+    nees = np.zeros((runs, steps))
+    for run in range(runs):
+        truth = np.array([1.0, 1.0, 0.0])
+        tracker = PoseTracker(truth + rng.multivariate_normal(np.zeros(3), P0), P0, gate_prob=None)
+        odom = ODOM_ORIGIN.copy()
+        tracker.on_odometry(0.0, *odom)
+        for k in range(steps):
+            nominal = np.array([0.05, 0.0, 0.03 * math.sin(k / 15)])  # 0.5 m/s, weaving
+            w = rng.multivariate_normal(np.zeros(3), model.noise(nominal))
+            truth = compose(truth, nominal + w)
+            odom = compose(odom, nominal)
+            tracker.on_odometry((k + 1) * dt, *odom)
+            if k % 10 == 9:
+                tracker.apply((k + 1) * dt, truth + rng.multivariate_normal(np.zeros(3), r), r)
+            e = tracker.pose - truth
+            e[2] = wrap_angle(e[2])
+            nees[run, k] = e @ np.linalg.solve(tracker.cov, e)
+    lo, hi = chi2.ppf([0.025, 0.975], 3 * runs) / runs
+    average = nees.mean(axis=0)  # over runs, per time step
+    assert lo < average.mean() < hi
+    # Per step the band holds 95 % of the time; successive steps are correlated, so allow some.
+    assert np.mean((average > lo) & (average < hi)) > 0.75
+
+
+def test_increment_is_frame_independent():
+    a, b = np.array([0.0, 0.0, 0.0]), np.array([0.3, 0.1, 0.2])
+    np.testing.assert_allclose(increment(compose(ODOM_ORIGIN, a), compose(ODOM_ORIGIN, b)),
+                               increment(a, b), atol=1e-12)
