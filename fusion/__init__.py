@@ -1,0 +1,12 @@
+"""fusion: the filter framework around the Hough method — EKF, streaming localizer, readers,
+simulator, Rerun logging and the ``houghloc`` command line.
+
+    from fusion import Localizer
+    loc = Localizer.from_config("configs/office-laser.yaml", map=m, initial_pose=(x, y, theta))
+    loc.on_odometry(t, x_odom, y_odom, theta_odom); est = loc.on_scan(t, ranges, angles)
+"""
+
+from fusion.config import ConfigError, LocalizerConfig, SensorConfig
+from fusion.localizer import Estimate, Localizer
+
+__all__ = ["ConfigError", "Estimate", "Localizer", "LocalizerConfig", "SensorConfig"]

@@ -123,7 +123,8 @@ class PoseEKF(ExtendedKalmanFilter):
         """Update with an absolute pose z (map frame) of covariance R (3×3), gated by the NIS.
 
         With ``basis`` U (3×k, orthonormal columns) only the k observable directions are
-        measured: z_k = Uᵀz, R_k = UᵀRU, H = Uᵀ; the unobserved direction is not updated.
+        measured: z_k = Uᵀz, R_k = UᵀRU, H = Uᵀ. Nothing is measured along the unobserved
+        directions: they change only through their prior correlation with the observed ones.
         Inputs are assumed finite and validated by the caller (see ``PoseTracker``).
         """
         r = np.asarray(r, dtype=float)

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from houghloc.geometry import compose, relative, wrap_angle
+from houghloc.geometry import compose, relative
 
 # Below this, an increment is treated as exactly zero (a reading repeated by the driver).
 _ZERO_MOTION = 1e-12
@@ -101,6 +101,11 @@ def interpolate(a: ArrayLike, b: ArrayLike, s: float) -> NDArray[np.float64]:
     return compose(a, step)
 
 
+def _wrap(angle: float) -> float:
+    """wrap_angle for one Python float (this module runs once per odometry reading)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
 class OdometryMotionModel:
     """Noise of odometry increments and detection of implausible ones (jumps)."""
 
@@ -116,7 +121,7 @@ class OdometryMotionModel:
         heading (not as a half turn, which would create a large spurious rotation noise).
         """
         c = self.config
-        dx, dy, dth = (float(v) for v in delta)
+        dx, dy, dth = float(delta[0]), float(delta[1]), float(delta[2])
         trans = math.hypot(dx, dy)
         if trans < _ZERO_MOTION and abs(dth) < _ZERO_MOTION:
             return np.zeros((3, 3))
@@ -125,27 +130,27 @@ class OdometryMotionModel:
         else:
             rot1, signed_trans = math.atan2(dy, dx), trans
             if abs(rot1) > math.pi / 2:  # driving backwards
-                rot1, signed_trans = float(wrap_angle(rot1 - math.pi)), -trans
-        rot2 = float(wrap_angle(dth - rot1))
+                rot1, signed_trans = _wrap(rot1 - math.pi), -trans
+        rot2 = _wrap(dth - rot1)
         # Translation's heading noise is split over the two rotations: α₂² per metre in total.
         var_rot1 = c.alpha1**2 * abs(rot1) + 0.5 * c.alpha2**2 * trans
         var_trans = c.alpha3**2 * trans + c.alpha4**2 * (abs(rot1) + abs(rot2))
         var_rot2 = c.alpha1**2 * abs(rot2) + 0.5 * c.alpha2**2 * trans
+        # Q = J diag(var_rot1, var_trans, var_rot2) Jᵀ, J = ∂(dx, dy, dθ)/∂(rot1, trans, rot2)
+        # for dx = t cos r1, dy = t sin r1, dθ = r1 + r2; written out, as this runs per reading.
         cos1, sin1 = math.cos(rot1), math.sin(rot1)
-        # dx = t cos r1, dy = t sin r1, dθ = r1 + r2
-        jac = np.array(
+        lat_x, lat_y = -signed_trans * sin1, signed_trans * cos1  # ∂(dx, dy)/∂rot1
+        amount = trans + abs(dth)
+        floor_xy, floor_th = c.floor_xy**2 * amount, c.floor_theta**2 * amount
+        qxy = lat_x * lat_y * var_rot1 + cos1 * sin1 * var_trans
+        qxt, qyt = lat_x * var_rot1, lat_y * var_rot1
+        return np.array(
             [
-                [-signed_trans * sin1, cos1, 0.0],
-                [signed_trans * cos1, sin1, 0.0],
-                [1.0, 0.0, 1.0],
+                [lat_x * lat_x * var_rot1 + cos1 * cos1 * var_trans + floor_xy, qxy, qxt],
+                [qxy, lat_y * lat_y * var_rot1 + sin1 * sin1 * var_trans + floor_xy, qyt],
+                [qxt, qyt, var_rot1 + var_rot2 + floor_th],
             ]
         )
-        q = (jac * np.array([var_rot1, var_trans, var_rot2])) @ jac.T
-        amount = trans + abs(dth)
-        q[0, 0] += c.floor_xy**2 * amount
-        q[1, 1] += c.floor_xy**2 * amount
-        q[2, 2] += c.floor_theta**2 * amount
-        return q
 
     def is_jump(self, delta: ArrayLike, dt: float) -> bool:
         """True when δ is implausible for the interval ``dt``: faster than the limits allow
@@ -155,8 +160,7 @@ class OdometryMotionModel:
         counts it: a jump is a glitch or a reset of the odometry, not the robot's motion.
         """
         c = self.config
-        dx, dy, dth = (float(v) for v in delta)
-        trans = math.hypot(dx, dy)
+        trans, dth = math.hypot(delta[0], delta[1]), float(delta[2])
         if dt <= 0.0:
             return trans > _ZERO_MOTION or abs(dth) > _ZERO_MOTION
         dt_eff = max(dt, c.jump_min_dt)

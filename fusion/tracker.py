@@ -146,10 +146,10 @@ class PoseTracker:
         reading is a no-op; an implausible increment is replaced by zero motion with the jump
         covariance and counted.
         """
-        odom = np.array([x, y, theta], dtype=float)
-        if not (math.isfinite(t) and np.isfinite(odom).all()):
-            self._invalid(f"non-finite odometry at t={t}: {odom}")
+        if not all(map(math.isfinite, (t, x, y, theta))):
+            self._invalid(f"non-finite odometry at t={t}: ({x}, {y}, {theta})")
             return
+        odom = np.array([x, y, theta], dtype=float)
         if not self._nodes:
             self._nodes.append(_Node(t, odom, self._x, self._p, _ZERO3, _ZERO33))
             return
@@ -158,7 +158,7 @@ class PoseTracker:
         if t < lo.t:
             self.counts.odometry_backwards += 1
             return
-        if t == lo.t and np.array_equal(odom, lo.odom):
+        if t == lo.t and (odom == lo.odom).all():
             return
         dt = t - lo.t
         total = increment(lo.odom, odom)
@@ -269,20 +269,26 @@ class PoseTracker:
         outcome = self._attach(node, meas)
         self._nodes.append(node)
         self._tail += 1
+        self._trim()
         return outcome
 
-    def reset(self, pose: ArrayLike, cov: ArrayLike) -> None:
+    def reset(self, pose: ArrayLike, cov: ArrayLike) -> bool:
         """Re-initialise (global relocalisation): the estimate at the newest odometry time
         becomes (pose, cov); the history before it is forgotten, so older measurements are
-        dropped. Counters are kept.
+        dropped. Counters are kept. An invalid pose or covariance is refused (counted, False).
         """
-        x, p = _checked_state(pose, cov)
+        try:
+            x, p = _checked_state(pose, cov)
+        except ValueError as error:
+            self._invalid(f"reset refused: {error}")
+            return False
         if not self._nodes:
             self._x, self._p = x, p
-            return
+            return True
         lo = self._nodes[len(self._nodes) - 1 - self._tail]
         self._nodes = deque([_Node(lo.t, lo.odom, x, p, _ZERO3, _ZERO33)])
         self._tail = 0
+        return True
 
     # ------------------------------------------------------------------------------ helpers
     def _split(
@@ -336,12 +342,16 @@ class PoseTracker:
             node.x, node.p = self._ekf.x, self._ekf.P
 
     def _trim(self) -> None:
-        """Forget nodes no longer needed to cover ``history_seconds`` before the newest
-        odometry; the oldest kept node is at or before that horizon.
+        """Forget nodes no longer needed to cover ``history_seconds`` before the newest node;
+        the oldest kept node is at or before that horizon. If the odometry stalls for longer
+        than the history, the oldest provisional node becomes the anchor for the next reading,
+        so a stream of measurements without odometry does not grow the history without bound.
         """
-        horizon = self._nodes[len(self._nodes) - 1 - self._tail].t - self.history_seconds
-        while len(self._nodes) > 1 and self._nodes[1].t <= horizon:
-            self._nodes.popleft()
+        nodes = self._nodes
+        horizon = nodes[-1].t - self.history_seconds
+        while len(nodes) > 1 and nodes[1].t <= horizon:
+            nodes.popleft()
+            self._tail = min(self._tail, len(nodes) - 1)
 
     def _invalid(self, message: str) -> None:
         self.counts.invalid += 1

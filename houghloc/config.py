@@ -33,6 +33,9 @@ class HoughConfig(BaseModel):
     refine_iterations: int = Field(2, ge=1)
     refine_band_sigmas: float = Field(4.0, gt=0.0)
     refine_min_band: float = Field(0.03, gt=0.0, description="m")
+    refine_max_band: float | None = Field(
+        None, gt=0.0, description="m; None: one ρ cell (noisier sensors need more)"
+    )
     piece_gap: float = Field(1.0, gt=0.0, description="m; a larger gap splits a line into pieces")
     min_piece_points: int = Field(5, ge=2)
     min_line_length: float = Field(0.4, ge=0.0, description="m; shorter pieces are not lines")

@@ -5,6 +5,8 @@ A pose is ``(x, y, θ)``: the position of ``base`` in ``map`` and its heading. A
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -22,23 +24,48 @@ def wrap_2pi(angle: ArrayLike) -> NDArray[np.float64] | float:
 
 
 def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """Pose composition a ⊕ b: the pose b, given in the frame of a, expressed in a's parent frame."""
-    ax, ay, at = np.asarray(a, dtype=float)
-    bx, by, bt = np.asarray(b, dtype=float)
-    c, s = np.cos(at), np.sin(at)
-    return np.array([ax + c * bx - s * by, ay + s * bx + c * by, float(wrap_angle(at + bt))])
+    """Pose composition a ⊕ b: the pose b, given in the frame of a, in a's parent frame.
+
+    Single poses (3,) take a scalar path (this runs for every odometry reading); stacks (N×3)
+    are vectorised, and one side may be a single pose.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if a.ndim == 1 and b.ndim == 1:
+        ax, ay, at = a.tolist()
+        bx, by, bt = b.tolist()
+        c, s = math.cos(at), math.sin(at)
+        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap(at + bt)])
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 0] + c * b[..., 0] - s * b[..., 1]
+    out[..., 1] = a[..., 1] + s * b[..., 0] + c * b[..., 1]
+    out[..., 2] = wrap_angle(a[..., 2] + b[..., 2])
+    return out
 
 
 def inverse(a: ArrayLike) -> NDArray[np.float64]:
-    """Pose inverse ⊖a, so that a ⊕ (⊖a) is the identity."""
-    ax, ay, at = np.asarray(a, dtype=float)
-    c, s = np.cos(at), np.sin(at)
-    return np.array([-c * ax - s * ay, s * ax - c * ay, float(wrap_angle(-at))])
+    """Pose inverse ⊖a, so that a ⊕ (⊖a) is the identity (single pose or N×3)."""
+    a = np.asarray(a, dtype=float)
+    if a.ndim == 1:
+        ax, ay, at = a.tolist()
+        c, s = math.cos(at), math.sin(at)
+        return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap(-at)])
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    out = np.empty(a.shape)
+    out[..., 0] = -c * a[..., 0] - s * a[..., 1]
+    out[..., 1] = s * a[..., 0] - c * a[..., 1]
+    out[..., 2] = wrap_angle(-a[..., 2])
+    return out
 
 
 def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """The motion from a to b in a's frame: (⊖a) ⊕ b. Odometry increments are computed this way."""
     return compose(inverse(a), b)
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % TWO_PI - math.pi
 
 
 def transform_points(pose: ArrayLike, points: NDArray[np.float64]) -> NDArray[np.float64]:

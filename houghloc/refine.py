@@ -44,8 +44,16 @@ class Lines:
         return len(self.theta)
 
     def subset(self, keep: NDArray) -> Lines:
-        return Lines(self.theta[keep], self.rho[keep], self.cov[keep], self.n[keep],
-                     self.sigma[keep], self.s0[keep], self.s1[keep], self.members[:, keep])
+        return Lines(
+            self.theta[keep],
+            self.rho[keep],
+            self.cov[keep],
+            self.n[keep],
+            self.sigma[keep],
+            self.s0[keep],
+            self.s1[keep],
+            self.members[:, keep],
+        )
 
 
 def _moments(points: NDArray) -> NDArray:
@@ -107,23 +115,31 @@ def _split_pieces(s: NDArray, mask: NDArray, config: HoughConfig) -> NDArray[np.
     return keep
 
 
-def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
-                 config: HoughConfig) -> Lines:
+def refine_lines(
+    points: NDArray[np.float64], theta0: NDArray, rho0: NDArray, config: HoughConfig
+) -> Lines:
     """Refine peaks (θ₀, ρ₀) to TLS lines with covariances; drop those that are not lines."""
     monomials = _moments(points)
-    band = config.rho_step  # first pass: one cell either side of the peak
+    max_band = config.refine_max_band or config.rho_step
+    band = max_band  # first pass: one cell (or the widest band) either side of the peak
     theta, rho = np.asarray(theta0, float), np.asarray(rho0, float)
+    mask = np.zeros((len(points), len(theta)), dtype=bool)
     for _ in range(config.refine_iterations - 1):
         mask = _inliers(points, theta, rho, band)
         theta, rho, var, n, _, _ = _tls(monomials, mask)
-        band = np.clip(config.refine_band_sigmas * np.sqrt(var), config.refine_min_band,
-                       config.rho_step)
-    keep = _distinct(theta, rho, n, config)
+        band = np.clip(
+            config.refine_band_sigmas * np.sqrt(var), config.refine_min_band, config.rho_step
+        )
+    keep = _distinct(mask, n)
     theta, rho, band = theta[keep], rho[keep], np.broadcast_to(band, keep.shape)[keep]
-    mask = _inliers(points, theta, rho, band)
-    # Points near a corner lie within the band of both walls and bias both fits: they are left
-    # out of the last fit (a corner has plenty of other points on each side).
-    mask &= (mask.sum(axis=1) <= 1)[:, None]
+    # Each point now belongs to the nearest line whose band holds it: a point near a corner
+    # biases only the wall it is on, and twin peaks cannot share their points.
+    dist = np.abs(points @ np.vstack((np.cos(theta), np.sin(theta))) - rho) / band
+    mask = np.zeros(dist.shape, dtype=bool)
+    if dist.shape[1]:
+        nearest = np.argmin(dist, axis=1)
+        rows = np.arange(len(points))
+        mask[rows, nearest] = dist[rows, nearest] <= 1.0
     normal = np.vstack((np.cos(theta), np.sin(theta)))
     mask = _split_pieces(points @ np.vstack((-normal[1], normal[0])), mask, config)
     theta, rho, var, n, c, spread_var = _tls(monomials, mask)
@@ -134,8 +150,11 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
     s_bar = c[:, 0] * t[0] + c[:, 1] * t[1]
     s0 = np.where(mask, along, np.inf).min(axis=0)
     s1 = np.where(mask, along, -np.inf).max(axis=0)
-    ok = (n >= config.min_piece_points) & (sigma <= config.max_line_sigma) & (
-        s1 - s0 >= config.min_line_length)
+    ok = (
+        (n >= config.min_piece_points)
+        & (sigma <= config.max_line_sigma)
+        & (s1 - s0 >= config.min_line_length)
+    )
     var_eff = np.maximum(var, config.point_sigma_floor**2)
     v_theta = var_eff / np.maximum(spread_var * n, 1e-12)  # σ² / Σ(sᵢ − s̄)²
     v_off = var_eff / np.maximum(n, 1.0)  # σ² / N
@@ -155,20 +174,16 @@ def _inliers(points: NDArray, theta: NDArray, rho: NDArray, band: NDArray | floa
     return np.abs(points @ np.vstack((np.cos(theta), np.sin(theta))) - rho) <= band
 
 
-def _distinct(theta: NDArray, rho: NDArray, n: NDArray, config: HoughConfig) -> NDArray:
-    """Drop peaks that refined to the same line (plateaus, θ ↔ θ+π twins near ρ = 0).
-
-    Two lines are the same when they differ by less than one grid cell in both θ and ρ, in either
-    representation of the identity (θ, ρ) ≡ (θ + π, −ρ). The one with more inliers is kept.
-    """
-    k = len(theta)
-    if k < 2:
-        return n > 0
-    dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % TWO_PI - np.pi)
-    same = (dth < config.theta_step) & (np.abs(rho[:, None] - rho[None, :]) < config.rho_step)
-    dth_flip = np.abs((theta[:, None] - theta[None, :]) % TWO_PI - np.pi)
-    same |= (dth_flip < config.theta_step) & (rho[:, None] + rho[None, :] < config.rho_step)
+def _distinct(mask: NDArray[np.bool_], n: NDArray) -> NDArray[np.bool_]:
+    """Drop peaks that found the same points as a stronger one (plateaus, a noisy line's spread
+    of peaks, the θ ↔ θ+π twins of a line through the sensor): more than half of the smaller
+    inlier set shared means one line. Lines meeting at a corner share a few points only."""
+    m = mask.astype(np.float32)
+    shared = m.T @ m  # K×K counts of common inliers
+    k = len(n)
     idx = np.arange(k)
+    same = shared > 0.5 * np.minimum(n[:, None], n[None, :])
     stronger = (n[None, :] > n[:, None]) | (
-        (n[None, :] == n[:, None]) & (idx[None, :] < idx[:, None]))
+        (n[None, :] == n[:, None]) & (idx[None, :] < idx[:, None])
+    )
     return (n > 0) & ~(same & stronger).any(axis=1)

@@ -21,13 +21,21 @@ P0 = np.diag([0.05**2, 0.05**2, 0.02**2])
 R_SMALL = np.diag([0.01**2, 0.01**2, 0.005**2])
 
 
-def drive(tracker: PoseTracker, twist: tuple[float, float], seconds: float, rate: float = 50.0,
-          t0: float = 0.0, odom0: np.ndarray = ODOM_ORIGIN) -> tuple[float, np.ndarray]:
+def drive(
+    tracker: PoseTracker,
+    twist: tuple[float, float],
+    seconds: float,
+    rate: float = 50.0,
+    t0: float = 0.0,
+    odom0: np.ndarray = ODOM_ORIGIN,
+) -> tuple[float, np.ndarray]:
     """Feed odometry of a constant (v, ω) for ``seconds``; returns the last (t, odometry pose)."""
     v, w = twist
     dt = 1.0 / rate
-    step = np.array([v * dt, 0.0, w * dt]) if abs(w) < 1e-12 else np.array(
-        [v / w * math.sin(w * dt), v / w * (1 - math.cos(w * dt)), w * dt]
+    step = (
+        np.array([v * dt, 0.0, w * dt])
+        if abs(w) < 1e-12
+        else np.array([v / w * math.sin(w * dt), v / w * (1 - math.cos(w * dt)), w * dt])
     )
     odom, t = np.array(odom0, dtype=float), t0
     tracker.on_odometry(t, *odom)
@@ -83,7 +91,7 @@ def test_straight_line_prediction_is_exact_without_noise():
     start = np.array([1.0, 2.0, 0.5])
     tracker = PoseTracker(start, P0, quiet)
     drive(tracker, (0.8, 0.0), seconds=2.5)
-    expected = start + [2.0 * math.cos(0.5), 2.0 * math.sin(0.5), 0.0]
+    expected = start + np.array([2.0 * math.cos(0.5), 2.0 * math.sin(0.5), 0.0])
     np.testing.assert_allclose(tracker.pose, expected, atol=1e-9)
 
 
@@ -99,8 +107,9 @@ def test_interpolation_follows_the_arc():
 
 
 # --------------------------------------------------------------------------------------- EKF
-@pytest.mark.parametrize("theta, measured", [(math.pi - 0.05, -math.pi + 0.05),
-                                             (-math.pi + 0.05, math.pi - 0.05)])
+@pytest.mark.parametrize(
+    "theta, measured", [(math.pi - 0.05, -math.pi + 0.05), (-math.pi + 0.05, math.pi - 0.05)]
+)
 def test_update_across_the_wrap_moves_the_short_way(theta, measured):
     ekf = PoseEKF([0.0, 0.0, theta], np.diag([0.01, 0.01, 0.01]))
     outcome = ekf.update_pose([0.0, 0.0, measured], np.diag([0.01, 0.01, 0.01]))
@@ -166,8 +175,9 @@ def _odometry_stream(rng, seconds=3.0, rate=50.0):
     odom, out = ODOM_ORIGIN.copy(), []
     for i in range(round(seconds * rate) + 1):
         out.append((i / rate, odom.copy()))
-        odom = compose(odom, [0.02 + rng.normal(0, 0.002), rng.normal(0, 0.001),
-                              0.01 + rng.normal(0, 0.005)])
+        odom = compose(
+            odom, [0.02 + rng.normal(0, 0.002), rng.normal(0, 0.001), 0.01 + rng.normal(0, 0.005)]
+        )
     return out
 
 
@@ -261,19 +271,31 @@ def test_pose_at_interpolates_and_never_extrapolates():
     np.testing.assert_allclose(p, tracker.cov)
 
 
+def test_measurements_without_odometry_keep_the_history_bounded():
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0, history_seconds=1.0)
+    t, odom = drive(tracker, (0.5, 0.0), seconds=1.0)
+    for k in range(1, 500):  # the odometry stalls; measurements keep coming at 50 Hz
+        assert tracker.apply(t + 0.02 * k, tracker.pose, R_SMALL).accepted
+    assert len(tracker._nodes) <= 60
+    tracker.on_odometry(t + 20.0, *compose(odom, [0.1, 0.0, 0.0]))
+    assert tracker.counts.odometry_jumps == 0 and np.isfinite(tracker.pose).all()
+
+
 # ----------------------------------------------------------------------- odometry hygiene
 def test_odometry_jump_is_flagged_and_replaced_by_zero_motion():
     tracker = PoseTracker([0.0, 0.0, 0.0], P0)
     t, odom = drive(tracker, (0.5, 0.0), seconds=1.0)
     pose, cov = tracker.pose, tracker.cov
-    tracker.on_odometry(t + 0.02, *(odom + [5.0, 0.0, 0.0]))  # 250 m/s
+    teleported = odom + np.array([5.0, 0.0, 0.0])
+    tracker.on_odometry(t + 0.02, *teleported)  # 250 m/s
     assert tracker.counts.odometry_jumps == 1
     np.testing.assert_allclose(tracker.pose, pose, atol=1e-12)
     assert np.all(np.diag(tracker.cov) > np.diag(cov))
-    tracker.on_odometry(t + 0.02, *(odom + [5.0, 0.0, 0.3]))  # same time, other pose
+    turned = teleported + np.array([0.0, 0.0, 0.3])
+    tracker.on_odometry(t + 0.02, *turned)  # same time, other pose
     assert tracker.counts.odometry_jumps == 2
     # Afterwards the new odometry frame is followed normally.
-    tracker.on_odometry(t + 0.04, *(odom + [5.0, 0.0, 0.3]))
+    tracker.on_odometry(t + 0.04, *turned)
     assert tracker.counts.odometry_jumps == 2
 
 
@@ -286,7 +308,10 @@ def test_backwards_duplicate_and_non_finite_inputs():
     tracker.on_odometry(t + 0.02, math.nan, 0.0, 0.0)
     assert tracker.counts.predictions == predictions
     assert tracker.counts.odometry_backwards == 1 and tracker.counts.invalid == 1
-    bad = [tracker.apply(t, [math.nan, 0, 0], R_SMALL), tracker.apply(t, pose, np.full((3, 3), math.inf))]
+    bad = [
+        tracker.apply(t, [math.nan, 0, 0], R_SMALL),
+        tracker.apply(t, pose, np.full((3, 3), math.inf)),
+    ]
     assert all(o.status == "invalid" for o in bad)
     assert tracker.counts.invalid == 3
     np.testing.assert_array_equal(tracker.pose, pose)
@@ -337,5 +362,6 @@ def test_monte_carlo_nees_is_inside_the_95_percent_band():
 
 def test_increment_is_frame_independent():
     a, b = np.array([0.0, 0.0, 0.0]), np.array([0.3, 0.1, 0.2])
-    np.testing.assert_allclose(increment(compose(ODOM_ORIGIN, a), compose(ODOM_ORIGIN, b)),
-                               increment(a, b), atol=1e-12)
+    np.testing.assert_allclose(
+        increment(compose(ODOM_ORIGIN, a), compose(ODOM_ORIGIN, b)), increment(a, b), atol=1e-12
+    )

@@ -212,16 +212,16 @@ def test_raw_carmen_log_values_and_angles(tmp_path):
     odometry, scans = split(events)
     assert (odometry[1].x, odometry[1].theta, odometry[1].t) == (0.1, 0.01, 1.2)
     assert scans[0].reference is None
-    np.testing.assert_allclose(scans[0].angles, np.linspace(-np.pi / 2, np.pi / 2, 5))
+    np.testing.assert_allclose(scans[0].angles, -np.pi / 2 + np.arange(5) * np.pi / 5)
     assert scans[0].ranges[2] >= scans[0].max_range  # 81.83: no return
     assert scans[0].line == 4
     assert log.stats.records == 5 and log.stats.skipped == 0
 
 
 def test_flaser_spacing_is_a_parameter(tmp_path):
-    log = read_carmen(write_log(tmp_path / "raw.log", RAW_LOG), spacing=FlaserSpacing.PI_OVER_N)
+    log = read_carmen(write_log(tmp_path / "raw.log", RAW_LOG), spacing=FlaserSpacing.ENDPOINTS)
     _, scans = split(list(log))
-    np.testing.assert_allclose(scans[0].angles, -np.pi / 2 + np.arange(5) * np.pi / 5)
+    np.testing.assert_allclose(scans[0].angles, np.linspace(-np.pi / 2, np.pi / 2, 5))
 
 
 def test_gzip_log_reads_like_plain(tmp_path):

@@ -108,14 +108,16 @@ class FlaserSpacing(StrEnum):
 
     On the three corrected logs, endpoints projected from the reference poses occupy 1–9 % fewer
     5 cm cells with ``PI_OVER_N`` than with ``ENDPOINTS`` (a sharper map: the convention of the
-    tool that corrected them), and fewer than any half-step shift of either.
+    tool that corrected them), also fewer than ``ENDPOINTS`` shifted by −½ step or ``PI_OVER_N``
+    shifted by ±¼ or −½ step. ``PI_OVER_N`` is therefore the default; logs that state their layout
+    (``ROBOTLASER1``, the simulator's) carry it explicitly.
     """
 
     ENDPOINTS = "pi/(n-1)"
     PI_OVER_N = "pi/n"
 
 
-def flaser_angles(n: int, spacing: FlaserSpacing = FlaserSpacing.ENDPOINTS) -> NDArray[np.float64]:
+def flaser_angles(n: int, spacing: FlaserSpacing = FlaserSpacing.PI_OVER_N) -> NDArray[np.float64]:
     """Beam angles (robot frame, radians) of an n-beam ``FLASER`` record."""
     if spacing == FlaserSpacing.ENDPOINTS:
         angles = np.linspace(-np.pi / 2, np.pi / 2, n)
@@ -151,7 +153,7 @@ class CarmenLog:
 
     path: Path
     conventions: CarmenConventions
-    spacing: FlaserSpacing = FlaserSpacing.ENDPOINTS
+    spacing: FlaserSpacing = FlaserSpacing.PI_OVER_N
     no_return_range: float = NO_RETURN_RANGE
     stats: ReadStats = field(default_factory=ReadStats)
 
@@ -169,7 +171,7 @@ def read_carmen(
     path: str | Path,
     raw_odometry: bool | None = None,
     *,
-    spacing: FlaserSpacing | str = FlaserSpacing.ENDPOINTS,
+    spacing: FlaserSpacing | str = FlaserSpacing.PI_OVER_N,
     no_return_range: float = NO_RETURN_RANGE,
     laser_odometry: bool | None = None,
 ) -> CarmenLog:

@@ -133,7 +133,8 @@ class ObstacleGroup(_Model):
 
     Each disc keeps its speed; its heading does a random walk (``turn_noise`` rad/√s) and is
     redrawn at random whenever the next step would come within ``radius`` of a wall or clutter,
-    or move towards the robot within ``radius + robot radius + 0.1`` m.
+    or move towards the robot within ``radius + robot radius + 0.1`` m; a disc that close to the
+    robot heads straight away from it (the robot itself does not avoid obstacles).
     """
 
     count: int = Field(0, ge=0)

@@ -205,7 +205,7 @@ def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
 
 
 def path_crosses_walls(m: SegmentMap, poses: FloatArray,
-                       skip: NDArray[np.bool_] | None = None, chunk: int = 20_000
+                       skip: NDArray[np.bool_] | None = None, chunk: int = 4096
                        ) -> NDArray[np.bool_]:
     """For each step k→k+1 of a path, whether it touches or crosses a wall (skipped steps —
     kidnaps — are reported False)."""

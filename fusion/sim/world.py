@@ -235,8 +235,9 @@ def simulate_obstacles(m: SegmentMap, rng: np.random.Generator, discs: FloatArra
     Each disc moves ``p ← p + s·dt·(cos ψ, sin ψ)`` with ``ψ ← ψ + turn_noise·√dt·N(0, 1)``. A step
     that would end within the disc's radius (+2 cm) of a wall or clutter, or move closer to the
     robot (``robot_xy[k]``) while within ``r + robot_radius + 0.1`` of it, is not taken and ψ is
-    redrawn uniformly. Steps are shorter than the radius (checked in the config), so a disc
-    cannot jump over a wall between two clear positions.
+    redrawn uniformly; a disc already that close to the robot heads straight away from it.
+    Steps are shorter than the radius (checked in the config), so a disc cannot jump over a wall
+    between two clear positions.
     """
     n = len(discs)
     out = np.empty((n_steps, n, 2))
@@ -252,11 +253,15 @@ def simulate_obstacles(m: SegmentMap, rng: np.random.Generator, discs: FloatArra
     for k in range(n_steps):
         out[k] = pos
         psi = psi + turn_noise * sqrt_dt * rng.standard_normal(n)
+        # The robot does not avoid anyone: a disc it comes close to steps out of its way.
+        r_next = robot_xy[min(k + 1, len(robot_xy) - 1)]
+        away = pos - r_next
+        d_now = np.hypot(away[:, 0], away[:, 1])
+        crowded = d_now < keep_out
+        psi = np.where(crowded, np.arctan2(away[:, 1], away[:, 0]), psi)
         new = pos + step[:, None] * np.column_stack((np.cos(psi), np.sin(psi)))
         blocked = min_distance(new, starts, ends) < radii + 0.02
-        r_next = robot_xy[min(k + 1, len(robot_xy) - 1)]
         d_new = np.hypot(*(new - r_next).T)
-        d_now = np.hypot(*(pos - r_next).T)
         blocked |= (d_new < keep_out) & (d_new < d_now)
         pos = np.where(blocked[:, None], pos, new)
         psi = np.where(blocked, rng.uniform(-np.pi, np.pi, size=n), psi)

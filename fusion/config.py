@@ -1,0 +1,86 @@
+"""Localizer configuration: pydantic groups, YAML overlay on the defaults, clear errors.
+
+The defaults describe a 2D laser with wheel odometry. A YAML file overrides any subset::
+
+    sensors:
+      laser: {max_range: 8.0, hough: {theta_step_deg: 2.0}}
+    filter: {motion: {alpha3: 0.1}}
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from fusion.motion import OdometryMotionConfig
+from houghloc import HoughConfig
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used; the message names the file, the field and why."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class SensorConfig(_Strict):
+    """One range sensor: where it is on the robot, what it sees, and its Hough settings."""
+
+    kind: Literal["laser", "camera"] = "laser"
+    mount: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="x, y, θ on base")
+    min_range: float = Field(0.05, ge=0.0)
+    max_range: float = Field(20.0, gt=0.0, description="returns at or beyond mean no return")
+    hough: HoughConfig = HoughConfig()
+
+
+class FilterConfig(_Strict):
+    """The EKF and its history of delayed measurements (DESIGN §4)."""
+
+    motion: OdometryMotionConfig = OdometryMotionConfig()
+    initial_sigma_xy: float = Field(0.1, gt=0.0, description="m, with --initial-pose")
+    initial_sigma_theta_deg: float = Field(3.0, gt=0.0)
+    gate_probability: float = Field(0.999, gt=0.5, lt=1.0, description="NIS gate")
+    history_seconds: float = Field(2.0, gt=0.0, description="how late a measurement may be")
+    delayed_updates: bool = Field(True, description="apply late measurements at their own time")
+
+    @property
+    def initial_cov(self) -> list[list[float]]:
+        s, t = self.initial_sigma_xy**2, math.radians(self.initial_sigma_theta_deg) ** 2
+        return [[s, 0.0, 0.0], [0.0, s, 0.0], [0.0, 0.0, t]]
+
+
+class LocalizerConfig(_Strict):
+    """Everything the :class:`fusion.Localizer` needs besides the map."""
+
+    sensors: dict[str, SensorConfig] = Field(default_factory=lambda: {"laser": SensorConfig()})
+    filter: FilterConfig = FilterConfig()
+
+    @classmethod
+    def from_yaml(cls, path: str | Path | None) -> LocalizerConfig:
+        """Defaults overlaid with the file's values; ``None`` gives the defaults."""
+        if path is None:
+            return cls()
+        path = Path(path)
+        try:
+            raw = yaml.safe_load(path.read_text())
+        except FileNotFoundError:
+            raise ConfigError(f"config {path}: file not found") from None
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+            raise ConfigError(f"config {path}: cannot read it ({exc})") from None
+        return cls.from_dict(raw or {}, source=str(path))
+
+    @classmethod
+    def from_dict(cls, raw: object, source: str = "<dict>") -> LocalizerConfig:
+        if not isinstance(raw, dict):
+            raise ConfigError(f"config {source}: expected a mapping, got {type(raw).__name__}")
+        try:
+            return cls.model_validate(raw)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            where = ".".join(str(p) for p in err["loc"])
+            raise ConfigError(f"config {source}: {where}: {err['msg']}") from None

@@ -1,0 +1,146 @@
+"""The streaming localizer: odometry predicts, Hough fixes correct (DESIGN §2, §4).
+
+    on_odometry ─▶ tracker.predict                    (EKF, history for late data)
+    on_scan ─▶ points ─▶ guess at the scan's time ─▶ localize_scan ─▶ tracker.apply ─▶ estimate
+
+Follow one scan: :meth:`Localizer.on_points` is the whole story.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fusion.config import LocalizerConfig, SensorConfig
+from fusion.ekf import UpdateOutcome
+from fusion.tracker import PoseTracker
+from fusion.visualize import NullLogger
+from houghloc import ScanCorrection, SegmentMap, localize_scan
+from houghloc.geometry import ranges_to_points, transform_points
+
+
+@dataclass(frozen=True, slots=True)
+class Estimate:
+    """The pose at a measurement's time after using it, and what happened to the measurement."""
+
+    t: float
+    pose: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    status: str  # accepted | rejected | ambiguous | no-fix | dropped | invalid
+    correction: ScanCorrection | None = None
+    outcome: UpdateOutcome | None = None
+
+
+@dataclass
+class LocalizerStats:
+    """Counts for ``metrics.json``: what became of every measurement."""
+
+    scans: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    ambiguous: int = 0
+    no_fix: int = 0
+    partial_rank: int = 0
+    dropped: int = 0
+    late: int = 0
+    statuses: dict[str, int] = field(default_factory=dict)
+
+
+class Localizer:
+    """Wheel odometry fused with Hough-transform pose fixes in an EKF, one event at a time."""
+
+    def __init__(self, map: SegmentMap, config: LocalizerConfig | None = None,  # noqa: A002
+                 initial_pose: ArrayLike | None = None, logger: NullLogger | None = None) -> None:
+        self.map = map
+        self.config = config or LocalizerConfig()
+        self.logger = logger or NullLogger()
+        fc = self.config.filter
+        pose = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=float)
+        self.tracker = PoseTracker(pose, fc.initial_cov, fc.motion, fc.history_seconds,
+                                   fc.gate_probability, fc.delayed_updates)
+        self.stats = LocalizerStats()
+        self.logger.log_map(map)
+
+    @classmethod
+    def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,  # noqa: A002
+                    initial_pose: ArrayLike | None = None,
+                    logger: NullLogger | None = None) -> Localizer:
+        cfg = config if isinstance(config, LocalizerConfig) else LocalizerConfig.from_yaml(config)
+        return cls(map, cfg, initial_pose, logger)
+
+    @property
+    def pose(self) -> NDArray[np.float64]:
+        return self.tracker.pose
+
+    @property
+    def cov(self) -> NDArray[np.float64]:
+        return self.tracker.cov
+
+    def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
+        """Predict with the odometry increment since the last reading (its frame is arbitrary)."""
+        self.tracker.on_odometry(t, x, y, theta)
+        self.logger.log_odometry(t, (x, y, theta))
+
+    def on_scan(self, t: float, ranges: ArrayLike, angles: ArrayLike,
+                sensor: str = "laser") -> Estimate:
+        """A range scan: beams to points (NaN, infinite and no-return beams dropped), then fused."""
+        cfg = self._sensor(sensor)
+        points = ranges_to_points(ranges, angles, cfg.max_range, cfg.min_range)
+        return self.on_points(t, points, sensor)
+
+    def on_points(self, t: float, points: ArrayLike, sensor: str = "camera") -> Estimate:
+        """Points in the sensor frame taken at time ``t`` (possibly in the past): fuse them.
+
+        1. the estimate at ``t`` is the guess, its covariance sets the matching gates;
+        2. the Hough method turns the points into a pose fix with its covariance and rank;
+        3. an unambiguous fix updates the filter at ``t`` (late fixes re-propagate the odometry
+           since), gated by its normalised innovation; an ambiguous one is not used.
+        """
+        cfg = self._sensor(sensor)
+        self.stats.scans += 1
+        points = _to_base(np.asarray(points, dtype=float).reshape(-1, 2), cfg)
+        prior = self.tracker.pose_at(t)
+        if prior is None:
+            return self._finish(t, "dropped", None, None, sensor, points)
+        guess, guess_cov = prior
+        fix = localize_scan(points, self.map, guess, cfg.hough, pose_cov=guess_cov)
+        if fix.ambiguous:
+            return self._finish(t, "ambiguous", fix, None, sensor, points)
+        if fix.rank == 0:
+            return self._finish(t, "no-fix", fix, None, sensor, points)
+        newest = self.tracker.time
+        if newest is not None and t < newest:
+            self.stats.late += 1
+        outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
+        self.stats.partial_rank += fix.rank < 3
+        return self._finish(t, outcome.status, fix, outcome, sensor, points)
+
+    def _finish(self, t: float, status: str, fix: ScanCorrection | None,
+                outcome: UpdateOutcome | None, sensor: str, points: NDArray) -> Estimate:
+        self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
+        counter = {"accepted": "accepted", "rejected": "rejected", "ambiguous": "ambiguous",
+                   "no-fix": "no_fix", "dropped": "dropped"}.get(status)
+        if counter:
+            setattr(self.stats, counter, getattr(self.stats, counter) + 1)
+        at_t = self.tracker.pose_at(t)
+        pose, cov = at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
+        estimate = Estimate(t, pose, cov, status, fix, outcome)
+        self.logger.log_scan(t, self.stats.scans - 1, sensor, points, fix, estimate)
+        return estimate
+
+    def _sensor(self, name: str) -> SensorConfig:
+        try:
+            return self.config.sensors[name]
+        except KeyError:
+            known = ", ".join(self.config.sensors)
+            raise KeyError(f"sensor {name!r} is not configured (configured: {known})") from None
+
+
+def _to_base(points: NDArray, cfg: SensorConfig) -> NDArray:
+    """Sensor-frame points to the robot frame (the Hough method works about the robot's origin)."""
+    if cfg.mount == (0.0, 0.0, 0.0) or len(points) == 0:
+        return points
+    return transform_points(np.asarray(cfg.mount), points)
