@@ -52,7 +52,7 @@ class LocalizerStats:
 class Localizer:
     """Wheel odometry fused with Hough-transform pose fixes in an EKF, one event at a time."""
 
-    def __init__(self, map: SegmentMap, config: LocalizerConfig | None = None,  # noqa: A002
+    def __init__(self, map: SegmentMap, config: LocalizerConfig | None = None,
                  initial_pose: ArrayLike | None = None, logger: NullLogger | None = None) -> None:
         self.map = map
         self.config = config or LocalizerConfig()
@@ -65,7 +65,7 @@ class Localizer:
         self.logger.log_map(map)
 
     @classmethod
-    def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,  # noqa: A002
+    def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,
                     initial_pose: ArrayLike | None = None,
                     logger: NullLogger | None = None) -> Localizer:
         cfg = config if isinstance(config, LocalizerConfig) else LocalizerConfig.from_yaml(config)

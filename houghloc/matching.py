@@ -77,7 +77,7 @@ def gate_threshold(probability: float, dof: int = 2) -> float:
 
 def associate(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
               config: HoughConfig) -> Matches:
-    """Gate every (line, reference) pair, check extents, and resolve one-to-one or flag ambiguity."""
+    """Gate every (line, reference) pair, check extents, resolve one-to-one or flag ambiguity."""
     k, n_ref = len(lines), len(refs)
     if k == 0 or n_ref == 0:
         e = np.empty(0, np.intp)

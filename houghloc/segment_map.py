@@ -111,7 +111,7 @@ class SegmentMap:
     # ---------------------------------------------------------------- construction
     @classmethod
     def from_yaml(cls, path: str | Path) -> SegmentMap:
-        """Load a map YAML (DESIGN §6); raise :class:`MapError` naming the file, entry and problem."""
+        """Load a map YAML (DESIGN §6); :class:`MapError` names the file, entry and problem."""
         path = Path(path)
         try:
             raw = yaml.safe_load(path.read_text())
@@ -124,7 +124,8 @@ class SegmentMap:
         if raw is None:
             raise MapError(f"map {path}: the file is empty")
         if not isinstance(raw, dict):
-            raise MapError(f"map {path}: expected a mapping with 'segments', got {type(raw).__name__}")
+            kind = type(raw).__name__
+            raise MapError(f"map {path}: expected a mapping with 'segments', got {kind}")
         return cls.from_dict(raw, source=str(path))
 
     @classmethod

@@ -1,7 +1,8 @@
 """The Hough grid and its voting (DESIGN §3.1–3.2).
 
-Normal form ρ = x cos θ + y sin θ with θ ∈ [0, 2π) and ρ ≥ 0: in the robot frame every line has one
-point and θ is cyclic. A few cells below ρ = 0 (``rho_margin_cells``) catch lines through the sensor.
+Normal form ρ = x cos θ + y sin θ with θ ∈ [0, 2π) and ρ ≥ 0: in the robot frame every line has
+one point and θ is cyclic. A few cells below ρ = 0 (``rho_margin_cells``) catch lines through the
+sensor.
 """
 
 from __future__ import annotations

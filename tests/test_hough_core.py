@@ -51,7 +51,7 @@ def test_a_line_is_found_and_refined_exactly(theta, rho, s0, length) -> None:
     # the grid peak is as close to the truth as the grid can tell (cyclic in θ): a short piece
     # fills one ρ cell over a range of θ as wide as atan(δρ / length) ...
     peaks = find_peaks(acc, len(pts), CFG)
-    th0, rh0 = grid.cell_center(peaks.i_theta[0], peaks.i_rho[0])
+    th0, _rh0 = grid.cell_center(peaks.i_theta[0], peaks.i_rho[0])
     assert angle_diff(th0, theta) <= 1.5 * grid.theta_step + math.atan(grid.rho_step / length)
     # ... and the refinement recovers the line itself, far below the grid
     assert angle_diff(lines.theta[0], theta) < 1e-7
