@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from time import perf_counter
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -47,6 +48,7 @@ class LocalizerStats:
     dropped: int = 0
     late: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=lambda: {"hough": 0.0, "update": 0.0})
 
 
 class Localizer:
@@ -106,7 +108,10 @@ class Localizer:
         if prior is None:
             return self._finish(t, "dropped", None, None, sensor, points)
         guess, guess_cov = prior
+        t0 = perf_counter()
         fix = localize_scan(points, self.map, guess, cfg.hough, pose_cov=guess_cov)
+        t1 = perf_counter()
+        self.stats.seconds["hough"] += t1 - t0
         if fix.ambiguous:
             return self._finish(t, "ambiguous", fix, None, sensor, points)
         if fix.rank == 0:
@@ -115,6 +120,7 @@ class Localizer:
         if newest is not None and t < newest:
             self.stats.late += 1
         outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
+        self.stats.seconds["update"] += perf_counter() - t1
         self.stats.partial_rank += fix.rank < 3
         return self._finish(t, outcome.status, fix, outcome, sensor, points)
 

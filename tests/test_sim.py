@@ -32,7 +32,7 @@ from fusion.sim import (
     write_run,
 )
 from fusion.sim.poses import increments
-from fusion.sim.raycast import min_distance, segment_segment_distance
+from fusion.sim.raycast import min_distance, segment_segment_distance, segments_cross
 from fusion.sim.routes import OFFICE_LOOP
 from fusion.sim.world import wall_segments
 from houghloc.geometry import wrap_angle
@@ -111,6 +111,31 @@ def test_robot_facing_a_wall_at_known_distance():
     assert scan.labels[ahead] == seg_index(m, "east")
     assert scan.ranges[0] == pytest.approx(2.0, abs=1e-12)  # right: the south wall
     assert scan.ranges[-1] == pytest.approx(4.0, abs=1e-12)  # left: the north wall
+
+
+def test_every_beam_ends_on_its_labelled_wall_and_nothing_is_nearer(office):
+    rng = np.random.default_rng(11)
+    ws, we = wall_segments(office)
+    for _ in range(5):
+        pose = random_free_pose(office, rng)
+        scan = laser_scan(office, pose, rng, EXACT_LASER)
+        hit = scan.labels >= 0
+        phi = pose[2] + scan.angles[hit]
+        u = np.column_stack((np.cos(phi), np.sin(phi)))
+        ends = pose[:2] + scan.ranges[hit, None] * u
+        lab = scan.labels[hit]
+        on_wall = min_distance_each(ends, office.starts[lab], office.ends[lab])
+        assert on_wall.max() < 1e-9
+        short = pose[:2] + (scan.ranges[hit, None] - 1e-6) * u
+        origin = np.repeat(pose[None, :2], len(short), axis=0)
+        assert not segments_cross(origin, short, ws, we).any()  # no wall before the hit
+
+
+def min_distance_each(points, starts, ends):
+    """Distance from point i to segment i."""
+    e = ends - starts
+    u = np.clip(np.einsum("ij,ij->i", points - starts, e) / np.einsum("ij,ij->i", e, e), 0, 1)
+    return np.hypot(*(points - starts - u[:, None] * e).T)
 
 
 def test_laser_no_return_dropout_and_spurious():
@@ -228,7 +253,7 @@ def test_error_free_odometry_increments_equal_true_ones():
 
 
 def test_systematic_error_alone_turns_the_heading():
-    odo = OdometryConfig(wheel_noise=0.0, left_scale_error=0.02, right_scale_error=-0.01)
+    odo = OdometryConfig(wheel_noise=0.0, left_scale_error=0.02, right_scale_error=-0.01)  # −0.075
     run = simulate(no_laser("robocup-laser", odometry=odo, duration=60.0))
     true_inc, odo_inc = increments(run.odom_truth), increments(run.odom_pose)
     ds = np.hypot(true_inc[:, 0], true_inc[:, 1])
@@ -351,7 +376,7 @@ def _records(path, keyword):
 
 def test_carmen_tum_and_scenario_files(tmp_path):
     run = simulate(scenario_preset("robocup-laser", duration=5.0))
-    paths = write_run(run, tmp_path)
+    paths = write_run(run, tmp_path, laser_message="FLASER")
     odom = _records(paths["log"], "ODOM ")
     laser = _records(paths["log"], "FLASER ")
     assert len(odom) == len(run.odom_t) and {len(r) for r in odom} == {10}
@@ -417,3 +442,19 @@ def test_config_errors_name_the_problem():
     cfg = scenario_preset("office-laser", seed=2, duration=12.0)
     assert cfg.seed == 2 and cfg.duration == 12.0 and cfg.clutter.count == 8
     assert ScenarioConfig.model_validate(cfg.model_dump(mode="json")) == cfg
+
+
+def test_default_log_states_its_beam_layout_and_reads_back_exactly(tmp_path):
+    """The default ROBOTLASER1 carries start angle and resolution: the reader recovers the
+    simulator's beams exactly, whatever FLASER convention it assumes."""
+    from fusion.io import open_log
+
+    run = simulate(scenario_preset("robocup-laser", duration=2.0))
+    write_run(run, tmp_path)
+    assert _records(tmp_path / "log.carmen", "ROBOTLASER1 ") and not _records(
+        tmp_path / "log.carmen", "FLASER ")
+    events, _ = open_log(tmp_path)
+    scans = [e for e in events if isinstance(e, Scan)]
+    assert len(scans) == len(run.scan_t)
+    np.testing.assert_allclose(scans[0].angles, run.angles, atol=1e-8)
+    np.testing.assert_allclose(scans[5].ranges, run.ranges[5], atol=5e-4)

@@ -102,5 +102,14 @@ def open_log(
 
 
 def merge_by_time(streams: Iterable[Iterable[Event]]) -> Iterator[Event]:
-    """Merge event streams that are each in time order into one (lazy; ties keep stream order)."""
-    return heapq.merge(*streams, key=lambda event: event.t)
+    """Merge event streams that are each in arrival order into one (lazy; ties keep stream order).
+
+    A point set arrives at ``arrival`` (its data was taken earlier, at ``t``); everything else
+    arrives when it was taken.
+    """
+    return heapq.merge(*streams, key=arrival_time)
+
+
+def arrival_time(event: Event) -> float:
+    arrival = getattr(event, "arrival", None)
+    return event.t if arrival is None else arrival

@@ -9,8 +9,9 @@
         FLASER n r1 … rn x y theta odom_x odom_y odom_theta ipc_timestamp ipc_hostname \
 logger_timestamp
 
-    ``FLASER`` is used for a 180° scanner (beam i at −90° + i·180°/(n−1)); any other field of
-    view is written as::
+    Scans are written as ``ROBOTLASER1``, which states its own beam layout (``FLASER`` leaves the
+    spacing to convention, π/n or π/(n−1), and readers disagree); ``laser_message="FLASER"``
+    (beam i at −90° + i·180°/(n−1)) or ``"auto"`` (FLASER for a 180° scanner) are available::
 
         ROBOTLASER1 laser_type start_angle fov angular_res max_range accuracy remission_mode \
 n r1 … rn 0 x y theta odom_x odom_y odom_theta tv rv forward_safety_dist side_safety_dist \
@@ -76,7 +77,7 @@ def _atomic_write(path: Path, write: Callable[[IO[str]], None]) -> Path:
 
 
 def write_run(run: SimRun, out_dir: str | Path,
-              laser_message: Literal["auto", "FLASER", "ROBOTLASER1"] = "auto"
+              laser_message: Literal["auto", "FLASER", "ROBOTLASER1"] = "ROBOTLASER1"
               ) -> dict[str, Path]:
     """Write the run's files (see the module docstring) and return their paths by name."""
     out = Path(out_dir)
@@ -129,8 +130,8 @@ def _write_carmen(run: SimRun, f: IO[str], laser_message: str) -> None:
                     "remission_mode n r1 ... rn 0 x y theta odom_x odom_y odom_theta tv rv "
                     "forward_safety_dist side_safety_dist turn_axis ipc_timestamp ipc_hostname "
                     "logger_timestamp\n")
-        head = (f"{LASER_TYPE_SIMULATED} {run.angles[0]:.6f} {fov:.6f} "
-                f"{fov / (len(run.angles) - 1):.6f} {cfg.laser.max_range:.3f} "
+        head = (f"{LASER_TYPE_SIMULATED} {run.angles[0]:.10f} {fov:.10f} "
+                f"{fov / (len(run.angles) - 1):.12f} {cfg.laser.max_range:.3f} "
                 f"{cfg.laser.sigma:.3f} 0")
         for k, t in enumerate(run.scan_t.tolist()):
             ranges = row_fmt % tuple(run.ranges[k].tolist())

@@ -1,0 +1,329 @@
+"""The ``houghloc`` command line. It parses, calls the library, prints; the work lives elsewhere.
+
+    houghloc demo                      the paper's RoboCup scenario, simulated and localized
+    houghloc run --map M --log L --out D [--config C] [--initial-pose X Y THETA] [--gt GT.tum]
+    houghloc sim --scenario NAME --out D [--seed S] [--duration SEC]
+    houghloc eval --est EST.tum --gt GT.tum [--relations FILE --time-offset S]
+    houghloc map build (--log CORRECTED_LOG | --grid ROS_MAP.yaml) --out MAP.yaml
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+EXIT_BAD_INPUT = 2
+
+
+class CliError(Exception):
+    """A problem the user can fix; printed without a traceback."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="houghloc: warning: %(message)s")
+    logging.captureWarnings(True)
+    warnings.simplefilter("default")
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("houghloc: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # every failure is a message, not a traceback
+        if getattr(args, "debug", False):
+            raise
+        print(f"houghloc: error: {_describe(exc)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def _describe(exc: Exception) -> str:
+    from fusion.config import ConfigError
+    from fusion.io.errors import LogError
+    from houghloc.segment_map import MapError
+
+    if isinstance(exc, MapError | ConfigError | LogError | CliError):
+        return str(exc)
+    if isinstance(exc, FileNotFoundError | PermissionError | IsADirectoryError):
+        return f"{exc.strerror}: {exc.filename}"
+    return f"{type(exc).__name__}: {exc} (run with --debug for the traceback)"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="houghloc",
+        description="Mobile-robot self-localization by the Hough transform, fused with wheel "
+                    "odometry in an EKF.")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    demo = sub.add_parser("demo", help="simulate the paper's RoboCup scenario and localize it",
+                          description="Simulate the paper's RoboCup field (a laser robot among "
+                          "three moving robots), localize it, write runs/demo/ and print "
+                          "odometry-only vs fused accuracy.")
+    demo.add_argument("--out", type=Path, default=Path("runs/demo"))
+    demo.add_argument("--duration", type=float, default=300.0, help="seconds (default 300)")
+    demo.add_argument("--seed", type=int, default=0)
+    _recording_options(demo)
+    demo.set_defaults(func=cmd_demo)
+
+    run = sub.add_parser("run", help="localize a log",
+                         description="Localize a log (CARMEN .log/.gz, Intel .mat, ROS bag, or a "
+                         "`houghloc sim` directory). Writes DIR/trajectory.tum (one TUM line per "
+                         "scan), DIR/metrics.json and DIR/run.rrd.")
+    run.add_argument("--map", required=True, type=Path, help="segment map YAML")
+    run.add_argument("--log", required=True, type=Path, help="the log to replay")
+    run.add_argument("--out", required=True, type=Path, help="output directory")
+    run.add_argument("--config", type=Path, help="localizer YAML (default: 2D laser + odometry)")
+    run.add_argument("--initial-pose", nargs=3, type=float, metavar=("X", "Y", "THETA"),
+                     help="start pose in the map (m, m, rad); without it: global localization")
+    run.add_argument("--gt", type=Path, help="ground truth (TUM) for errors in metrics.json")
+    run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _recording_options(run)
+    run.set_defaults(func=cmd_run)
+
+    sim = sub.add_parser("sim", help="generate a simulated scenario",
+                         description="Simulate a scenario and write log.carmen, gt.tum, map.yaml, "
+                         "scenario.yaml (and camera.points for camera scenarios).")
+    sim.add_argument("--scenario", default="robocup-laser",
+                     help="preset name (robocup-laser, robocup-camera, office-laser) or a "
+                          "scenario YAML")
+    sim.add_argument("--out", required=True, type=Path)
+    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--duration", type=float, help="seconds (default: the preset's)")
+    sim.set_defaults(func=cmd_sim)
+
+    ev = sub.add_parser("eval", help="score a trajectory",
+                        description="ATE (RMSE and max, position and heading) and the lost "
+                        "fraction (> 0.3 m or > 5°) against ground truth; relation errors "
+                        "(Kümmerle et al. 2009) against a relations file.")
+    ev.add_argument("--est", required=True, type=Path, help="estimated trajectory (TUM)")
+    ev.add_argument("--gt", type=Path, help="ground truth or reference poses (TUM)")
+    ev.add_argument("--relations", type=Path, help="relations file: t1 t2 dx dy dz r p yaw")
+    ev.add_argument("--time-offset", type=float, default=0.0,
+                    help="seconds subtracted from the relations' timestamps")
+    ev.add_argument("--align", action="store_true",
+                    help="SE(2)-align the estimate first (for paths in their own frame)")
+    ev.add_argument("--max-dt", type=float, default=0.02, help="association tolerance (s)")
+    ev.set_defaults(func=cmd_eval)
+
+    mp = sub.add_parser("map", help="segment maps").add_subparsers(dest="map_command",
+                                                                   required=True)
+    build = mp.add_parser("build", help="build a segment map from a corrected log or a grid",
+                          description="Scans at the corrected poses (or a ROS map_server grid) → "
+                          "occupancy grid → segments → map YAML, with a PNG of the segments "
+                          "over the grid beside it.")
+    src = build.add_mutually_exclusive_group(required=True)
+    src.add_argument("--log", type=Path, help="corrected CARMEN log")
+    src.add_argument("--grid", type=Path, help="ROS map_server YAML (with its PGM)")
+    build.add_argument("--out", required=True, type=Path, help="map YAML to write")
+    build.add_argument("--resolution", type=float, default=0.05, help="grid cell (m)")
+    build.add_argument("--min-length", type=float, default=0.5, help="shortest segment (m)")
+    build.set_defaults(func=cmd_map_build)
+    return parser
+
+
+def _recording_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--no-rerun", action="store_true", help="do not record run.rrd")
+    p.add_argument("--serve", action="store_true",
+                   help="also serve the Rerun web viewer on localhost")
+
+
+# ------------------------------------------------------------------------------------- commands
+def cmd_run(args: argparse.Namespace) -> int:
+    from fusion.evaluation import Trajectory
+    from fusion.localizer import Localizer
+    from fusion.replay import metrics_document, replay, write_metrics
+    from houghloc import SegmentMap
+
+    segment_map = SegmentMap.from_yaml(args.map)
+    events, read_stats, sim_gt = _open_log(args.log)
+    gt_path = args.gt or sim_gt
+    reference = Trajectory.from_tum(gt_path) if gt_path else None
+    if args.initial_pose is not None and not all(math.isfinite(v) for v in args.initial_pose):
+        raise CliError("--initial-pose must be three finite numbers")
+    args.out.mkdir(parents=True, exist_ok=True)
+    logger = _make_logger(args, args.out / "run.rrd")
+    loc = Localizer.from_config(args.config, segment_map, args.initial_pose, logger)
+    result = replay(events, loc, trajectory_path=args.out / "trajectory.tum",
+                    progress=False if args.no_progress else None, description=args.log.name)
+    doc = metrics_document(result, loc, read_stats, reference,
+                           {"map": str(args.map), "log": str(args.log),
+                            "ground_truth": str(gt_path) if gt_path else None})
+    write_metrics(args.out / "metrics.json", doc)
+    logger.close()
+    print(f"{len(result.t)} scans in {result.seconds['total']:.1f} s "
+          f"({result.scans_per_second:.0f} scans/s); fixes accepted {loc.stats.accepted}, "
+          f"rejected {loc.stats.rejected}, ambiguous {loc.stats.ambiguous}, "
+          f"none {loc.stats.no_fix}")
+    if "ate" in doc:
+        _print_accuracy_rows([("houghloc", doc)])
+    print(f"wrote {args.out / 'trajectory.tum'}, {args.out / 'metrics.json'}"
+          + ("" if args.no_rerun else f", {args.out / 'run.rrd'}"))
+    return 130 if result.interrupted else 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from fusion.evaluation import Trajectory
+    from fusion.localizer import Localizer
+    from fusion.replay import accuracy, metrics_document, replay, write_metrics
+    from fusion.sim import scenario_preset, simulate, write_run
+
+    print(f"Simulating the RoboCup field: {args.duration:.0f} s, a laser robot among three "
+          f"moving robots (seed {args.seed}) ...")
+    run = simulate(scenario_preset("robocup-laser", seed=args.seed, duration=args.duration))
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_run(run, args.out / "sim")
+    truth = Trajectory(run.truth_t, run.truth)
+    logger = _make_logger(args, args.out / "run.rrd")
+    config = Path(__file__).resolve().parents[1] / "configs" / "robocup-laser.yaml"
+    loc = Localizer.from_config(config if config.exists() else None, run.map,
+                                run.odom_truth[0], logger)  # the kick-off pose is known
+    result = replay(run.events(), loc, trajectory_path=args.out / "trajectory.tum",
+                    description="localizing")
+    odometry_only = Trajectory(run.odom_t, run.odom_in_map())
+    fused = metrics_document(result, loc, None, truth, {"scenario": "robocup-laser",
+                                                        "seed": args.seed})
+    dead_reckoning = accuracy(_resampled(odometry_only, result.t), truth)
+    write_metrics(args.out / "metrics.json", {**fused, "odometry_only": dead_reckoning})
+    logger.close()
+    print()
+    _print_accuracy_rows([("odometry only", dead_reckoning), ("houghloc (fused)", fused)])
+    print(f"\n{len(result.t)} scans, {result.scans_per_second:.0f} scans/s; "
+          f"outputs in {args.out}/ (trajectory.tum, metrics.json"
+          + ("" if args.no_rerun else ", run.rrd — open it with `rerun "
+             f"{args.out / 'run.rrd'}`") + ")")
+    return 0
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    from fusion.sim import load_scenario, scenario_preset, simulate, write_run
+
+    path = Path(args.scenario)
+    if path.suffix in (".yaml", ".yml"):
+        cfg = load_scenario(path)
+        cfg = cfg.model_copy(update={"seed": args.seed} | (
+            {"duration": args.duration} if args.duration else {}))
+    else:
+        cfg = scenario_preset(args.scenario, seed=args.seed, duration=args.duration)
+    run = simulate(cfg)
+    paths = write_run(run, args.out)
+    print(f"simulated {cfg.name}: {len(run.scan_t)} scans, {len(run.cam_t)} camera frames, "
+          f"{len(run.odom_t)} odometry readings over {cfg.duration:.0f} s")
+    for name, p in paths.items():
+        print(f"  {name:10s} {p}")
+    return 0
+
+
+def cmd_eval(args: argparse.Namespace) -> int:
+    from fusion.evaluation import ATE, Alignment, LostFraction, RelationError, Trajectory
+    from fusion.io.relations import read_relations
+
+    if args.gt is None and args.relations is None:
+        raise CliError("give --gt (ground truth) and/or --relations")
+    est = Trajectory.from_tum(args.est)
+    if args.gt is not None:
+        ref = Trajectory.from_tum(args.gt)
+        align = Alignment.SE2 if args.align else Alignment.NONE
+        ate = ATE(alignment=align, max_dt=args.max_dt).compute(est, ref)
+        if len(ate.position_errors) == 0:
+            raise CliError(f"no pose of {args.est} is within {args.max_dt} s of one in {args.gt}")
+        lost = LostFraction(max_dt=args.max_dt).compute(est, ref)
+        p, h = ate.position, ate.heading_deg
+        print(f"matched {len(ate.position_errors)} of {len(est)} poses"
+              + (" (SE(2)-aligned)" if args.align else ""))
+        print(f"ATE position  RMSE {p['rmse'] * 100:8.2f} cm   max {p['max'] * 100:8.2f} cm")
+        print(f"ATE heading   RMSE {h['rmse']:8.3f} deg  max {h['max']:8.3f} deg")
+        print(f"lost (> 0.3 m or > 5°): {lost.fraction * 100:.2f} % ({lost.count} poses)")
+    if args.relations is not None:
+        rel = RelationError(max_dt=args.max_dt).compute(
+            est, read_relations(args.relations, args.time_offset))
+        d = rel.as_dict()
+        print(f"relations: {d.get('count')} used, {d.get('missing')} without a pose")
+        print(f"  translational  mean {d.get('translation_mean_m', float('nan')):.4f} m   "
+              f"std {d.get('translation_std_m', float('nan')):.4f} m")
+        print(f"  rotational     mean {d.get('rotation_mean_rad', float('nan')):.4f} rad "
+              f"std {d.get('rotation_std_rad', float('nan')):.4f} rad")
+    return 0
+
+
+def cmd_map_build(args: argparse.Namespace) -> int:
+    try:
+        from fusion.mapping import build_map
+    except ImportError as exc:
+        raise CliError(f"the map builder is not available ({exc})") from None
+    source = args.log or args.grid
+    m = build_map(source, args.out, resolution=args.resolution, min_length=args.min_length)
+    print(f"{len(m)} segments ({m.n_lines} lines) → {args.out} and {args.out.with_suffix('.png')}")
+    return 0
+
+
+# -------------------------------------------------------------------------------------- helpers
+def _open_log(path: Path) -> tuple[Any, Any, Path | None]:
+    """Events, read statistics, and the ground truth a simulator directory carries."""
+    from fusion.io import open_log
+
+    sources = []
+    sim_gt = None
+    if path.is_dir():
+        from fusion.sim import read_camera_points
+
+        if (path / "camera.points").exists():
+            sources.append(lambda d: read_camera_points(d / "camera.points"))
+        if (path / "gt.tum").exists():
+            sim_gt = path / "gt.tum"
+    events, stats = open_log(path, extra_sources=sources)
+    return events, stats, sim_gt
+
+
+def _make_logger(args: argparse.Namespace, path: Path):
+    from fusion.visualize import NullLogger
+
+    if args.no_rerun and not args.serve:
+        return NullLogger()
+    try:
+        from fusion.rerun_logger import RerunLogger
+    except ImportError:
+        return NullLogger()
+    return RerunLogger(None if args.no_rerun else path, serve=args.serve)
+
+
+def _resampled(traj, t: np.ndarray):
+    """A trajectory sampled at times t (nearest earlier sample), for like-for-like errors."""
+    from fusion.evaluation import Trajectory
+
+    idx = np.clip(np.searchsorted(traj.t, t, side="right") - 1, 0, len(traj.t) - 1)
+    return Trajectory(t, traj.poses[idx])
+
+
+def _print_accuracy_rows(rows: list[tuple[str, dict]]) -> None:
+    header = (f"{'':18s} {'ATE RMSE':>10s} {'ATE max':>10s} {'heading RMSE':>13s} "
+              f"{'heading max':>12s} {'lost':>7s}")
+    print(header)
+    print("-" * len(header))
+    for name, doc in rows:
+        ate, lost = doc.get("ate", {}), doc.get("lost", {})
+        print(f"{name:18s} {_cm(ate.get('position_rmse_m'))} {_cm(ate.get('position_max_m'))} "
+              f"{_deg(ate.get('heading_rmse_deg'), 13)} {_deg(ate.get('heading_max_deg'), 12)} "
+              f"{(lost.get('lost_fraction') or 0) * 100:6.1f}%")
+
+
+def _cm(v: float | None) -> str:
+    if v is None:
+        return f"{'–':>10s}"
+    return f"{v * 100:7.2f} cm" if v < 1.0 else f"{v:8.2f} m"
+
+
+def _deg(v: float | None, width: int) -> str:
+    return f"{'–':>{width}s}" if v is None else f"{v:{width - 4}.3f} deg"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

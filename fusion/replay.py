@@ -1,0 +1,184 @@
+"""Replay a stream of events through a :class:`~fusion.Localizer`: the offline runner behind
+``houghloc run`` and ``houghloc demo``.
+
+Outputs are written so that an interrupted run leaves valid files: the trajectory is streamed one
+complete TUM line per scan; ``metrics.json`` is written whole, atomically, at the end (also after
+Ctrl-C, marked ``interrupted``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from tqdm import tqdm
+
+from fusion.evaluation import ATE, LostFraction, Trajectory, nees
+from fusion.events import Event, Odometry, PointSet, ReadStats, Scan, Truth
+from fusion.io.files import atomic_write_json
+from fusion.io.tum import TumWriter
+from fusion.localizer import Localizer
+
+
+@dataclass
+class ReplayResult:
+    """The estimated trajectory (one pose per processed scan), ground truth if any, timings."""
+
+    t: NDArray[np.float64]
+    poses: NDArray[np.float64]
+    covs: NDArray[np.float64]
+    statuses: list[str]
+    truth: Trajectory | None
+    seconds: dict[str, float] = field(default_factory=dict)
+    events: int = 0
+    interrupted: bool = False
+
+    @property
+    def trajectory(self) -> Trajectory:
+        return Trajectory(self.t, self.poses)
+
+    @property
+    def scans_per_second(self) -> float:
+        total = self.seconds.get("total", 0.0)
+        return len(self.t) / total if total > 0 else float("nan")
+
+
+def replay(events: Iterable[Event], localizer: Localizer, *,
+           trajectory_path: str | Path | None = None, progress: bool | None = None,
+           description: str = "replay") -> ReplayResult:
+    """Feed every event to the localizer in arrival order; collect the estimate at each scan.
+
+    ``progress``: a tqdm bar in scans (None: only when writing to a terminal).
+    """
+    t_out: list[float] = []
+    poses: list[NDArray] = []
+    covs: list[NDArray] = []
+    statuses: list[str] = []
+    truth_t: list[float] = []
+    truth: list[tuple[float, float, float]] = []
+    seconds = {"odometry": 0.0, "scans": 0.0}
+    writer = TumWriter(trajectory_path).open() if trajectory_path is not None else None
+    bar = tqdm(desc=description, unit="scan", disable=(None if progress is None else not progress),
+               mininterval=0.5, dynamic_ncols=True)
+    n_events = 0
+    interrupted = False
+    started = time.perf_counter()
+    try:
+        for event in events:
+            n_events += 1
+            t0 = time.perf_counter()
+            if isinstance(event, Odometry):
+                localizer.on_odometry(event.t, event.x, event.y, event.theta)
+                seconds["odometry"] += time.perf_counter() - t0
+                continue
+            if isinstance(event, Truth):
+                truth_t.append(event.t)
+                truth.append((event.x, event.y, event.theta))
+                localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
+                continue
+            if isinstance(event, Scan):
+                est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor)
+            elif isinstance(event, PointSet):
+                est = localizer.on_points(event.t, event.points, event.sensor)
+            else:
+                continue
+            seconds["scans"] += time.perf_counter() - t0
+            t_out.append(est.t)
+            poses.append(est.pose)
+            covs.append(est.cov)
+            statuses.append(est.status)
+            if writer is not None:
+                writer.write(est.t, *est.pose)
+            bar.update()
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        bar.close()
+        if writer is not None:
+            writer.close()
+        localizer.logger.flush()
+    seconds["total"] = time.perf_counter() - started
+    seconds.update(localizer.stats.seconds)
+    return ReplayResult(
+        np.asarray(t_out), np.asarray(poses).reshape(-1, 3), np.asarray(covs).reshape(-1, 3, 3),
+        statuses, Trajectory(truth_t, truth) if truth_t else None, seconds, n_events, interrupted)
+
+
+def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) -> dict[str, Any]:
+    """ATE, lost fraction (and NEES, given covariances) against ground truth or reference poses."""
+    est = result if isinstance(result, Trajectory) else result.trajectory
+    if reference is None or len(reference) == 0 or len(est) == 0:
+        return {}
+    ate = ATE().compute(est, reference)
+    lost = LostFraction().compute(est, reference)
+    out: dict[str, Any] = {"ate": ate.as_dict(), "lost": lost.as_dict()}
+    idx = ate.association.est_index
+    if len(idx) and isinstance(result, ReplayResult):
+        err = np.column_stack((result.poses[idx, :2] - reference.poses[ate.association.ref_index,
+                                                                        :2], ate.heading_errors))
+        out["nees"] = nees(err, result.covs[idx]).as_dict()
+    return out
+
+
+def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: ReadStats | None,
+                     reference: Trajectory | None, extra: dict[str, Any] | None = None
+                     ) -> dict[str, Any]:
+    """Everything ``metrics.json`` reports: counts, time per stage, accuracy when known."""
+    stats = localizer.stats
+    counts = localizer.tracker.counts
+    n = len(result.t)
+    doc: dict[str, Any] = {
+        "scans": n,
+        "events": result.events,
+        "interrupted": result.interrupted,
+        "updates": counts.updates,
+        "rejections": counts.rejected,
+        "delayed_measurements": counts.delayed,
+        "dropped_measurements": counts.dropped + stats.dropped,
+        "odometry_jumps": counts.odometry_jumps,
+        "odometry_backwards": counts.odometry_backwards,
+        "invalid_inputs": counts.invalid,
+        "fixes": {"accepted": stats.accepted, "rejected": stats.rejected,
+                  "ambiguous": stats.ambiguous, "no_fix": stats.no_fix,
+                  "partial_rank": stats.partial_rank, "late": stats.late},
+        "statuses": dict(stats.statuses),
+        "seconds": {k: round(v, 6) for k, v in result.seconds.items()},
+        "time_per_scan_ms": {
+            k: round(1e3 * v / n, 4) for k, v in result.seconds.items() if n and k != "total"},
+        "scans_per_second": _finite(result.scans_per_second),
+    }
+    if read_stats is not None:
+        doc["log"] = {"records": read_stats.records, "skipped": read_stats.skipped,
+                      "backwards_timestamps": read_stats.backwards_timestamps,
+                      "warnings": read_stats.warnings[:20]}
+    doc.update(accuracy(result, reference))
+    if extra:
+        doc.update(extra)
+    return doc
+
+
+def write_metrics(path: str | Path, doc: dict[str, Any]) -> None:
+    atomic_write_json(path, _json_safe(doc))
+
+
+def _finite(v: float) -> float | None:
+    return v if math.isfinite(v) else None
+
+
+def _json_safe(value: Any) -> Any:
+    """NaN and infinities become null (JSON has no NaN; a reader must not choke on the file)."""
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
