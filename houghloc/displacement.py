@@ -18,14 +18,17 @@ invented — and the covariance carries ``UNOBSERVED_VARIANCE`` along the unobse
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
-from houghloc.matching import Matches, hough_jacobians, inv2
+from houghloc.matching import Matches
 
 UNOBSERVED_VARIANCE = 1.0e6  # m² (or rad²): finite, so no NaN downstream, and plainly "unknown"
+_FULL = np.column_stack(((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))
+_NONE = np.zeros((3, 0))
 
 
 @dataclass(frozen=True)
@@ -47,33 +50,50 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         z = np.zeros((3, 0))
         return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
                             z, np.eye(3), 0.0, 0)
-    jac = hough_jacobians(beta)  # M×2×3
-    w = inv2(matches.cov)  # Cᵢ⁻¹
-    jt_w = jac.transpose(0, 2, 1) @ w  # M×3×2
-    info = (jt_w @ jac).sum(axis=0)  # Λ = Σ Jᵀ C⁻¹ J
-    b = np.einsum("mij,mj->i", jt_w, matches.residual)  # Σ Jᵀ C⁻¹ r
-    info = 0.5 * (info + info.T)
+    # Per match, with n = (cos β, sin β), W = C⁻¹ = [[w00, w01], [w01, w11]] and residual r:
+    # Jᵀ W J = [[w11 n nᵀ, w01 n], [w01 nᵀ, w00]],
+    # Jᵀ W r = [−n (w01 r₀ + w11 r₁), −(w00 r₀ + w01 r₁)].
+    c = matches.cov
+    det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2
+    w00, w01, w11 = c[:, 1, 1] / det, -c[:, 0, 1] / det, c[:, 0, 0] / det
+    nx, ny = np.cos(beta), np.sin(beta)
+    r0, r1 = matches.residual[:, 0], matches.residual[:, 1]
+    info = np.empty((3, 3))
+    info[0, 0] = (w11 * nx * nx).sum()
+    info[0, 1] = info[1, 0] = (w11 * nx * ny).sum()
+    info[1, 1] = (w11 * ny * ny).sum()
+    info[0, 2] = info[2, 0] = (w01 * nx).sum()
+    info[1, 2] = info[2, 1] = (w01 * ny).sum()
+    info[2, 2] = w00.sum()
+    wr = w01 * r0 + w11 * r1
+    b = np.array([-(nx * wr).sum(), -(ny * wr).sum(), -(w00 * r0 + w01 * r1).sum()])
 
     # Observable translation directions: eigenvectors of the Schur complement
-    # Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out).
-    basis = [np.array([0.0, 0.0, 1.0])]
-    blind = []
+    # Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out), a symmetric 2×2 solved in closed form.
     schur = info[:2, :2] - np.outer(info[:2, 2], info[2, :2]) / info[2, 2]
-    lam, vec = np.linalg.eigh(schur)
-    for k in range(2):
-        direction = np.array([vec[0, k], vec[1, k], 0.0])
-        if lam[k] > 1.0 / max_observable_sigma**2:
-            basis.append(direction)
-        else:
-            blind.append(direction)
-    u = np.column_stack(basis)
-    v = np.column_stack(blind) if blind else np.zeros((3, 0))
-    info_u = u.T @ info @ u
-    cov_u = np.linalg.inv(info_u)
-    delta = u @ (cov_u @ (u.T @ b))
-    cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
-    post = matches.residual - np.einsum("mij,j->mi", jac, delta)
-    chi2_total = float(np.einsum("mi,mij,mj->", post, w, post))
+    a, bb, d = schur[0, 0], schur[0, 1], schur[1, 1]
+    half_gap = math.hypot(0.5 * (a - d), bb)
+    lam_small = 0.5 * (a + d) - half_gap
+    if lam_small > 1.0 / max_observable_sigma**2:  # the usual case: the whole pose is observed
+        cov = np.linalg.inv(info)
+        delta = cov @ b
+        u, v = _FULL, _NONE
+    else:
+        lam = (lam_small, 0.5 * (a + d) + half_gap)
+        phi = 0.5 * math.atan2(2.0 * bb, a - d)  # direction of the larger eigenvalue
+        dirs = ((-math.sin(phi), math.cos(phi)), (math.cos(phi), math.sin(phi)))
+        basis = [(0.0, 0.0, 1.0)]
+        blind = []
+        for lam_k, (vx, vy) in zip(lam, dirs, strict=True):
+            (basis if lam_k > 1.0 / max_observable_sigma**2 else blind).append((vx, vy, 0.0))
+        u = np.array(basis).T
+        v = np.array(blind).T
+        cov_u = np.linalg.inv(u.T @ info @ u)
+        delta = u @ (cov_u @ (u.T @ b))
+        cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
+    post_0 = r0 + delta[2]  # residual after the correction: r − J Δ
+    post_1 = r1 + nx * delta[0] + ny * delta[1]
+    chi2_total = float((w00 * post_0**2 + 2 * w01 * post_0 * post_1 + w11 * post_1**2).sum())
     rank = u.shape[1]
     return Displacement(delta, 0.5 * (cov + cov.T), info, rank, u, v, chi2_total,
                         max(2 * len(matches) - rank, 0))

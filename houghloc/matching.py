@@ -77,34 +77,49 @@ def gate_threshold(probability: float, dof: int = 2) -> float:
 
 def associate(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
               config: HoughConfig) -> Matches:
-    """Gate every (line, reference) pair, check extents, resolve one-to-one or flag ambiguity."""
+    """Gate every (line, reference) pair, check extents, resolve one-to-one or flag ambiguity.
+
+    S = J P Jᵀ + C per pair, written out for 2×2 blocks: with J = [[0, 0, −1], [−nᵀ, 0]],
+    J P Jᵀ = [[P_θθ, nᵀP_tθ], [nᵀP_tθ, nᵀP_tt n]].
+    """
     k, n_ref = len(lines), len(refs)
     if k == 0 or n_ref == 0:
         e = np.empty(0, np.intp)
         return Matches(e, e, np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0))
-    jac = hough_jacobians(refs.beta)
-    s_pose = jac @ pose_cov @ jac.transpose(0, 2, 1)  # L×2×2: J P Jᵀ
-
-    # Both representations of each observed line: (θ, ρ) and (θ + π, −ρ) with cov(θ,ρ) negated.
+    cb, sb = np.cos(refs.beta), np.sin(refs.beta)
+    p_tt = pose_cov[2, 2]
+    p_rt = cb * pose_cov[0, 2] + sb * pose_cov[1, 2]  # L: cov(ρ, θ) from the pose
+    p_rr = cb * cb * pose_cov[0, 0] + 2 * cb * sb * pose_cov[0, 1] + sb * sb * pose_cov[1, 1]
+    c_tt = lines.cov[:, 0, 0][:, None]
+    c_tr = lines.cov[:, 0, 1][:, None]
+    c_rr = lines.cov[:, 1, 1][:, None]
+    s00 = p_tt + c_tt  # K×L
+    s11 = p_rr[None, :] + c_rr
+    # Both representations of each observed line: (θ, ρ) and (θ + π, −ρ); the latter negates
+    # cov(θ, ρ). The one closer to the reference is kept.
+    d_theta = (lines.theta[:, None] - refs.theta[None, :] + np.pi) % TWO_PI - np.pi
+    d_theta_flip = (d_theta + TWO_PI) % TWO_PI - np.pi  # (θ + π) − θ_ref, wrapped
+    d_rho = lines.rho[:, None] - refs.rho[None, :]
+    d_rho_flip = -lines.rho[:, None] - refs.rho[None, :]
+    s01 = p_rt[None, :] + c_tr
+    s01_flip = p_rt[None, :] - c_tr
+    d2 = _quadratic(d_theta, d_rho, s00, s01, s11)
+    d2_flip = _quadratic(d_theta_flip, d_rho_flip, s00, s01_flip, s11)
+    flip = d2_flip < d2
+    best_d2 = np.where(flip, d2_flip, d2)
+    res = np.stack((np.where(flip, d_theta_flip, d_theta), np.where(flip, d_rho_flip, d_rho)), -1)
+    gated = best_d2 <= gate_threshold(config.gate_probability)
+    candidate = gated
+    if gated.any():
+        candidate = gated & _extents_overlap(lines, refs, pose, pose_cov, config)
     flip_cov = lines.cov * np.array([[1.0, -1.0], [-1.0, 1.0]])
-    best_d2 = np.full((k, n_ref), np.inf)
-    best_res = np.zeros((k, n_ref, 2))
-    best_flip = np.zeros((k, n_ref), dtype=bool)
-    for flipped, theta, rho, cov in ((False, lines.theta, lines.rho, lines.cov),
-                                     (True, lines.theta + np.pi, -lines.rho, flip_cov)):
-        res = np.empty((k, n_ref, 2))
-        res[..., 0] = (theta[:, None] - refs.theta[None, :] + np.pi) % TWO_PI - np.pi
-        res[..., 1] = rho[:, None] - refs.rho[None, :]
-        s_inv = inv2(s_pose[None, :, :, :] + cov[:, None, :, :])
-        d2 = np.einsum("kli,klij,klj->kl", res, s_inv, res)
-        better = d2 < best_d2
-        best_d2 = np.where(better, d2, best_d2)
-        best_res = np.where(better[..., None], res, best_res)
-        best_flip = np.where(better, flipped, best_flip)
+    return _resolve(lines, candidate, best_d2, res, flip, flip_cov, config)
 
-    candidate = (best_d2 <= gate_threshold(config.gate_probability)) & _extents_overlap(
-        lines, refs, pose, pose_cov, config)
-    return _resolve(lines, candidate, best_d2, best_res, best_flip, flip_cov, config)
+
+def _quadratic(a: NDArray, b: NDArray, s00: NDArray, s01: NDArray, s11: NDArray) -> NDArray:
+    """(a, b) S⁻¹ (a, b)ᵀ for symmetric 2×2 S, elementwise."""
+    det = s00 * s11 - s01 * s01
+    return (s11 * a * a - 2.0 * s01 * a * b + s00 * b * b) / det
 
 
 def _extents_overlap(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
@@ -117,26 +132,23 @@ def _extents_overlap(lines: Lines, refs: References, pose: NDArray, pose_cov: ND
     distance) must reach ``min_extent_coverage``: a wall seen through a goal mouth or a door is not
     the wall beside the opening.
     """
-    t = np.column_stack((-np.sin(refs.beta), np.cos(refs.beta)))  # L×2
-    offset = t @ pose[:2]
-    var_along = np.einsum("li,ij,lj->l", t, pose_cov[:2, :2], t)  # L
+    tx, ty = -np.sin(refs.beta), np.cos(refs.beta)
+    offset = tx * pose[0] + ty * pose[1]  # L
+    var_along = tx * tx * pose_cov[0, 0] + 2 * tx * ty * pose_cov[0, 1] + ty * ty * pose_cov[1, 1]
     reach = np.maximum(np.abs(lines.s0), np.abs(lines.s1))  # K
-    sigma = np.sqrt(np.maximum(var_along[None, :], 0.0)
-                    + reach[:, None] ** 2 * max(pose_cov[2, 2], 0.0))  # K×L
-    slack = config.extent_margin + 3.0 * sigma[:, refs.seg_ref]  # K×S
-    seg_off = offset[refs.seg_ref]
-    length = np.maximum(lines.s1 - lines.s0, 1e-6)[:, None]
-    seg_lo = refs.seg_s0[None, :] - slack
-    seg_hi = refs.seg_s1[None, :] + slack
-    covered = np.zeros((len(lines), len(refs)))
+    seg = refs.seg_ref
+    sigma = np.sqrt(np.maximum(var_along[seg], 0.0)[None, :]
+                    + (reach**2 * max(pose_cov[2, 2], 0.0))[:, None])  # K×S
+    slack = config.extent_margin + 3.0 * sigma
+    seg_lo = refs.seg_s0[None, :] - slack - offset[seg][None, :]  # segment in robot coordinates
+    seg_hi = refs.seg_s1[None, :] + slack - offset[seg][None, :]
+    s0, s1 = lines.s0[:, None], lines.s1[:, None]
     # the line may have been seen with the flipped normal: then its direction is reversed
-    for lo, hi in ((lines.s0, lines.s1), (-lines.s1, -lines.s0)):
-        lo_w = lo[:, None] + seg_off[None, :]
-        hi_w = hi[:, None] + seg_off[None, :]
-        overlap = np.clip(np.minimum(hi_w, seg_hi) - np.maximum(lo_w, seg_lo), 0.0, None)
-        per_ref = np.zeros_like(covered)
-        np.add.at(per_ref.T, refs.seg_ref, overlap.T)  # sum the segments of each line
-        covered = np.maximum(covered, per_ref / length)
+    overlap = np.maximum(np.clip(np.minimum(s1, seg_hi) - np.maximum(s0, seg_lo), 0.0, None),
+                         np.clip(np.minimum(-s0, seg_hi) - np.maximum(-s1, seg_lo), 0.0, None))
+    onehot = np.zeros((len(seg), len(refs)))
+    onehot[np.arange(len(seg)), seg] = 1.0
+    covered = (overlap @ onehot) / np.maximum(lines.s1 - lines.s0, 1e-6)[:, None]
     return covered >= config.min_extent_coverage
 
 

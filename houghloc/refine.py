@@ -87,32 +87,34 @@ def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
 
 
 def _split_pieces(s: NDArray, mask: NDArray, config: HoughConfig) -> NDArray[np.bool_]:
-    """Keep only points in contiguous pieces with enough points and length (all columns at once).
+    """Keep only points in contiguous pieces with at least ``min_piece_points`` (all lines at once).
 
-    Along-line coordinates are sorted per column (non-members pushed to +inf, so members form a
-    prefix); a gap larger than ``piece_gap`` starts a new piece. Working on the column-major
-    flattening, pieces are runs: their sizes come from a bincount, their ends from the run bounds.
+    Each line's inliers are binned along the line in cells of half ``piece_gap``; a run of
+    occupied cells is a piece. A gap wider than ``piece_gap`` always leaves an empty cell, so it
+    always splits (a gap between half and one ``piece_gap`` may). One bincount over (line, cell)
+    does all lines together, without sorting the points.
     """
-    order = np.argsort(np.where(mask, s, np.inf), axis=0)
-    s_sorted = np.take_along_axis(s, order, axis=0).T  # K×N, members first in each row
-    valid = np.take_along_axis(mask, order, axis=0).T
-    gap = np.zeros_like(valid)
-    gap[:, 1:] = (s_sorted[:, 1:] - s_sorted[:, :-1]) > config.piece_gap
-    start = valid & gap
-    start[:, 0] = valid[:, 0]
-    flat_start, flat_valid, flat_s = start.ravel(), valid.ravel(), s_sorted.ravel()
-    piece = np.cumsum(flat_start) - 1  # run id of every entry (meaningful where valid)
-    ids = piece[flat_valid]
-    size = np.bincount(ids, minlength=int(flat_start.sum()))
-    first = np.flatnonzero(flat_start)
-    last = first + size - 1
-    length = flat_s[last] - flat_s[first]
-    good = (size >= config.min_piece_points) & (length >= config.min_line_length)
-    keep_sorted = np.zeros_like(flat_valid)
-    keep_sorted[flat_valid] = good[ids]
-    keep = np.zeros_like(mask)
-    np.put_along_axis(keep, order, keep_sorted.reshape(valid.shape).T, axis=0)
-    return keep
+    k = s.shape[1]
+    if k == 0 or not mask.any():
+        return mask
+    half = 0.5 * config.piece_gap
+    s_in = np.where(mask, s, np.inf)
+    lo = s_in.min(axis=0)
+    lo = np.where(np.isfinite(lo), lo, 0.0)
+    cell = ((s - lo) * (1.0 / half)).astype(np.int64)
+    n_cells = int(cell[mask].max()) + 2
+    np.clip(cell, 0, n_cells - 1, out=cell)
+    flat = cell + np.arange(k) * n_cells  # N×K global cell ids
+    counts = np.bincount(flat[mask], minlength=k * n_cells)
+    occupied = counts > 0
+    start = occupied.copy()
+    start[1:] &= ~occupied[:-1]
+    start[::n_cells] = occupied[::n_cells]  # a row's first cell starts a piece if occupied
+    piece = np.cumsum(start) - 1
+    size = np.bincount(piece[occupied], weights=counts[occupied],
+                       minlength=int(start.sum()))
+    good_cell = occupied & (size[np.maximum(piece, 0)] >= config.min_piece_points)
+    return mask & good_cell[flat]
 
 
 def refine_lines(
@@ -166,7 +168,8 @@ def refine_lines(
     # points from claiming sub-millimetre certainty.
     cov[:, 0, 0] += config.line_theta_floor**2
     cov[:, 1, 1] += config.line_rho_floor**2
-    return Lines(theta, rho, cov, n.astype(np.int64), sigma, s0, s1, mask).subset(ok)
+    lines = Lines(theta, rho, cov, n.astype(np.int64), sigma, s0, s1, mask)
+    return lines if ok.all() else lines.subset(ok)
 
 
 def _inliers(points: NDArray, theta: NDArray, rho: NDArray, band: NDArray | float) -> NDArray:

@@ -27,6 +27,9 @@ from houghloc.geometry import TWO_PI
 SegmentKind = Literal["wall", "line"]
 
 
+_VISIBILITY_CACHE_SIZE = 20000  # cells; at 0.2 m, 800 m² of building
+
+
 class MapError(ValueError):
     """A map file or map definition that cannot be used; the message names the file and entry."""
 
@@ -90,6 +93,7 @@ class SegmentMap:
         collinear_angle_tol: float = math.radians(0.5),
         collinear_dist_tol: float = 0.02,
         index_spacing: float = 1.0,
+        visibility_cell: float = 0.2,
     ) -> None:
         self.name = name
         self.starts = np.asarray(starts, dtype=float).reshape(-1, 2)
@@ -107,6 +111,8 @@ class SegmentMap:
         self.lengths = lengths
         self._merge_collinear(collinear_angle_tol, collinear_dist_tol)
         self._build_index(index_spacing)
+        self.visibility_cell = visibility_cell
+        self._visibility_cache: dict[tuple, tuple[NDArray, NDArray, NDArray]] = {}
 
     # ---------------------------------------------------------------- construction
     @classmethod
@@ -225,6 +231,10 @@ class SegmentMap:
         self._sample_segment = seg
         self._tree = cKDTree(pts)
 
+    def clear_cache(self) -> None:
+        """Forget memoised visibility (benchmarks measuring the cold cost call this)."""
+        self._visibility_cache.clear()
+
     def segments_near(self, center: ArrayLike, radius: float) -> NDArray[np.intp]:
         """Indices of segments with any part within ``radius`` (approximately) of ``center``."""
         hits = self._tree.query_ball_point(np.asarray(center, dtype=float)[:2],
@@ -237,7 +247,7 @@ class SegmentMap:
         pose: ArrayLike,
         max_range: float,
         kinds: tuple[str, ...] = ("wall",),
-        n_rays: int = 360,
+        n_rays: int = 180,
     ) -> References:
         """Predicted Hough points of the lines visible from ``pose`` (DESIGN §3.4).
 
@@ -245,31 +255,51 @@ class SegmentMap:
         not); painted lines are kept if they come within range.
         """
         x, y, th = (float(v) for v in pose)
-        cand = self.segments_near((x, y), max_range)
-        cand = cand[np.isin(self.kinds[cand], kinds)]
-        if len(cand) == 0:
-            return _empty_references()
-        walls = cand[self.is_wall[cand]]
-        visible_walls = self._first_hits((x, y), walls, max_range, n_rays) if len(walls) else walls
-        painted = cand[~self.is_wall[cand]]
-        segs = np.concatenate((visible_walls, painted))
+        segs, lines, seg_ref = self._visible((x, y), max_range, tuple(kinds), n_rays)
         if len(segs) == 0:
             return _empty_references()
-        lines, seg_ref = np.unique(self.line_of_segment[segs], return_inverse=True)
         alpha, r = self.line_alpha[lines], self.line_r[lines]
         rho = r - (x * np.cos(alpha) + y * np.sin(alpha))
         flipped = rho < 0
         beta = np.where(flipped, alpha + np.pi, alpha)
-        rho = np.abs(rho)
         theta = np.mod(beta - th, TWO_PI)
         sign = np.where(flipped, -1.0, 1.0)[seg_ref]  # direction (−sin β, cos β) flips with β
         s0, s1 = self.seg_s0[segs] * sign, self.seg_s1[segs] * sign
-        return References(lines, theta, rho, np.mod(beta, TWO_PI), seg_ref,
+        return References(lines, theta, np.abs(rho), np.mod(beta, TWO_PI), seg_ref,
                           np.minimum(s0, s1), np.maximum(s0, s1))
 
+    def _visible(self, origin: tuple[float, float], max_range: float, kinds: tuple[str, ...],
+                 n_rays: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+        """Visible segments, their lines and each segment's row among those lines.
+
+        Visibility changes slowly with position, so it is memoised per ``visibility_cell`` of
+        space — except where a wall passes within a cell of the origin: there a step can cross to
+        the other side, and the rays are cast from the exact position.
+        """
+        cell = self.visibility_cell
+        key = (math.floor(origin[0] / cell), math.floor(origin[1] / cell),
+               round(max_range, 1), kinds, n_rays)
+        hit = self._visibility_cache.get(key)
+        if hit is not None:
+            return hit
+        cand = self.segments_near(origin, max_range)
+        cand = cand[np.isin(self.kinds[cand], kinds)]
+        walls = cand[self.is_wall[cand]]
+        visible, clearance = (self._first_hits(origin, walls, max_range, n_rays) if len(walls)
+                              else (walls, np.inf))
+        segs = np.concatenate((visible, cand[~self.is_wall[cand]]))
+        lines, seg_ref = np.unique(self.line_of_segment[segs], return_inverse=True)
+        out = (segs, lines, seg_ref.reshape(-1))
+        if clearance > 1.5 * cell:
+            if len(self._visibility_cache) >= _VISIBILITY_CACHE_SIZE:
+                self._visibility_cache.pop(next(iter(self._visibility_cache)))
+            self._visibility_cache[key] = out
+        return out
+
     def _first_hits(self, origin: tuple[float, float], segs: NDArray[np.intp], max_range: float,
-                    n_rays: int) -> NDArray[np.intp]:
-        """Segments that are the first wall hit by at least one of ``n_rays`` rays."""
+                    n_rays: int) -> tuple[NDArray[np.intp], float]:
+        """Segments that are the first wall hit by at least one of ``n_rays`` rays, and the
+        distance from the origin to the nearest of ``segs``."""
         phi = np.linspace(0.0, TWO_PI, n_rays, endpoint=False)
         d = np.column_stack((np.cos(phi), np.sin(phi)))  # R×2
         p0 = self.starts[segs] - origin  # S×2
@@ -283,7 +313,10 @@ class SegmentMap:
         t = np.where(hit, t, np.inf)
         first = np.argmin(t, axis=1)
         seen = np.isfinite(t[np.arange(n_rays), first])
-        return segs[np.unique(first[seen])]
+        # distance to the nearest segment: the projection of the origin, clamped to the segment
+        along = np.clip(-(p0 * e).sum(axis=1) / (e * e).sum(axis=1), 0.0, 1.0)
+        clearance = float(np.sqrt(((p0 + along[:, None] * e) ** 2).sum(axis=1).min()))
+        return segs[np.unique(first[seen])], clearance
 
 
 def _empty_references() -> References:

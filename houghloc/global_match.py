@@ -1,0 +1,632 @@
+"""Global set matching, the paper's strategy (ii) (DESIGN §3.6).
+
+When tracking cannot be trusted, the points of several views are accumulated into one robot-centred
+frame, their lines are extracted, and the **set** of observed lines is matched against the **set**
+of map lines without any pose guess:
+
+1. *Hypotheses from pairs.* Two observed lines i, k that are not parallel (angle ≥
+   ``min_pair_angle_deg``) and two oriented map lines a, b with the same angle between them fix the
+   pose. With β the world normal pointing from the robot to a line and r_β its signed distance
+   (a canonical map line (α, r) gives the two orientations (α, r) and (α + π, −r)):
+       θ = β_a − θ_i  (≈ β_b − θ_k; the mean is used),
+       x cos β_a + y sin β_a = r_a − ρ_i,   x cos β_b + y sin β_b = r_b − ρ_k   (2×2 solve).
+   Map pairs are kept in an *angle index* sorted by δ = β_b − β_a (mod 2π), so the candidates of an
+   observed pair are one ``searchsorted`` range, not a scan of all map pairs.
+2. *Pose-space votes.* Hypotheses outside the map's bounding box are dropped; the rest are binned
+   in (x, y, θ): correct correspondences agree on one pose, wrong ones scatter, so the count per
+   cell (the number of line pairs that support it) ranks the cells.
+3. *Cheap score.* For the best-voted cells, a few samples along each observed line are placed in
+   the world and looked up in a distance-transform grid of the map's walls (O(1) per sample): the
+   weighted fraction of lines lying on real walls (lines are infinite, segments are not).
+4. *Full score* of the top ``max_hypotheses_scored``: all points (subsampled) are looked up,
+       score = w · (point-weighted fraction of lines explained) + (1 − w) · (fraction of points
+       within ``inlier_distance`` of a wall),
+   a line being explained when ≥ ``min_line_coverage`` of its points lie on walls.
+5. *Clusters and refinement.* Near-identical poses are merged (best first); each surviving cluster
+   is refined by weighted least squares on its matched lines (:func:`houghloc.matching.associate`
+   and :func:`houghloc.displacement.estimate_displacement` with a tight prior around the
+   hypothesis), which gives an honest covariance, and is scored again.
+
+A symmetric map leaves several hypotheses within ``tie_margin`` of the best: all are reported and
+the result is flagged ``ambiguous`` — the caller keeps collecting views, it never picks one.
+
+Cost: with K observed lines (P ≤ ``max_observed_pairs`` pairs), L map lines and H hypotheses, the
+index is built once per map in O(L² log L); generation is O(P log L² + H); the votes O(H log H);
+the cheap score O(C·K·S) for C ≤ ``max_cells_cheap`` cells and S samples per line; the full score
+O(M·N) for M ≤ ``max_hypotheses_scored`` and N ≤ ``max_score_points``. Only generation and votes
+grow with the map (H ∝ the number of map pairs at each observed angle).
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from houghloc.config import HoughConfig
+from houghloc.displacement import estimate_displacement
+from houghloc.geometry import TWO_PI, wrap_angle
+from houghloc.matching import associate
+from houghloc.refine import Lines
+from houghloc.segment_map import SegmentMap
+
+
+class GlobalMatchConfig(BaseModel):
+    """Settings of global set matching. Angles in degrees in the names, radians inside."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # --- hypotheses from pairs
+    min_pair_angle_deg: float = Field(
+        15.0, gt=0.0, lt=90.0, description="two lines closer to parallel do not fix a pose")
+    angle_tol_sigmas: float = Field(3.0, gt=0.0, description="× σ of the observed angle δ")
+    angle_tol_floor_deg: float = Field(1.5, ge=0.0, description="model error of map and lines")
+    angle_tol_max_deg: float = Field(5.0, gt=0.0, le=30.0, description="cap on the δ window")
+    max_observed_lines: int = Field(
+        12, ge=2, description="the strongest lines (most points) form the pairs")
+    max_observed_pairs: int = Field(
+        40, ge=1, description="best-conditioned pairs kept (length product × |sin δ|)")
+    bbox_margin: float = Field(0.0, ge=0.0, description="m; poses beyond the map's box are dropped")
+    # --- pose-space votes and cheap score
+    vote_cell_xy: float = Field(0.25, gt=0.0, description="m")
+    vote_cell_theta_deg: float = Field(3.0, gt=0.0)
+    max_cells_cheap: int = Field(4000, ge=1, description="best-voted cells given the cheap score")
+    line_samples: int = Field(8, ge=2, description="samples along each line for the cheap score")
+    # --- full score
+    max_hypotheses_scored: int = Field(
+        120, ge=1, description="top-M by the cheap score that get the point-based score")
+    max_score_points: int = Field(1500, ge=10, description="points subsampled for the score")
+    dt_cell: float = Field(0.05, gt=0.0, description="m; cell of the distance-transform grid")
+    inlier_distance: float = Field(0.12, gt=0.0, description="m; a point this close is on a wall")
+    min_line_coverage: float = Field(
+        0.6, gt=0.0, le=1.0, description="fraction of a line's points on walls to explain it")
+    line_weight: float = Field(0.5, ge=0.0, le=1.0, description="w in the score")
+    # Negative evidence, for the refined hypotheses: a point behind a wall that the hypothesis
+    # puts between it and the robot was seen *through* that wall, so it does not count. This is
+    # what separates two rooms alike but for a pillar that one of them would have shown.
+    check_visibility: bool = True
+    visibility_margin: float = Field(
+        0.25, ge=0.0, description="m; also absorbs the baseline between accumulated views")
+    # --- clusters, refinement, decision
+    cluster_xy: float = Field(0.3, gt=0.0, description="m; closer poses are one hypothesis")
+    cluster_theta_deg: float = Field(5.0, gt=0.0)
+    max_refined: int = Field(8, ge=1, description="clusters refined and reported")
+    refine_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior around a hypothesis")
+    refine_sigma_theta_deg: float = Field(3.0, gt=0.0)
+    refine_iterations: int = Field(2, ge=1)
+    min_lines_explained: int = Field(2, ge=2, description="and two of them non-parallel (rank 3)")
+    tie_margin: float = Field(
+        0.02, ge=0.0, description="hypotheses this close to the best score tie with it")
+    # Line extraction for accumulated views (pass it to ``observe_lines``) and the gates and
+    # extent checks of the refinement's matching. A peak needs a fraction of *all* points: with
+    # 360° of accumulated views that fraction is halved (and more peaks kept), or a short wall
+    # seen through a door never becomes a line and the pose stays undetermined.
+    hough: HoughConfig = HoughConfig(peak_fraction=0.02, max_peaks=24)
+
+    @property
+    def min_pair_angle(self) -> float:
+        return math.radians(self.min_pair_angle_deg)
+
+    @property
+    def angle_tol_floor(self) -> float:
+        return math.radians(self.angle_tol_floor_deg)
+
+    @property
+    def angle_tol_max(self) -> float:
+        return math.radians(self.angle_tol_max_deg)
+
+    @property
+    def vote_cell_theta(self) -> float:
+        return math.radians(self.vote_cell_theta_deg)
+
+    @property
+    def cluster_theta(self) -> float:
+        return math.radians(self.cluster_theta_deg)
+
+    @property
+    def refine_sigma_theta(self) -> float:
+        return math.radians(self.refine_sigma_theta_deg)
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One candidate pose of ``base`` in ``map``.
+
+    ``cov`` is the covariance of the refined pose from its matched lines alone. ``score`` ∈ [0, 1]
+    (see the module docstring); ``n_lines_explained`` counts the observed lines lying on walls;
+    ``inlier_fraction`` is the fraction of points within ``inlier_distance`` of a wall;
+    ``matches`` is an M×2 array of (observed line index, map line index) used by the refinement.
+    """
+
+    pose: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    score: float
+    n_lines_explained: int
+    inlier_fraction: float
+    matches: NDArray[np.intp]
+
+
+@dataclass(frozen=True)
+class GlobalResult:
+    """Hypotheses best first (distinct poses), whether several tie, and why (or why none)."""
+
+    hypotheses: list[Hypothesis] = field(default_factory=list)
+    ambiguous: bool = False
+    reason: str = ""
+    n_candidates: int = 0  # pose hypotheses generated from line pairs (inside the map)
+
+    @property
+    def best(self) -> Hypothesis | None:
+        return self.hypotheses[0] if self.hypotheses else None
+
+
+_DEFAULT_CONFIG = GlobalMatchConfig()
+
+
+# ---------------------------------------------------------------------------- per-map caches
+@dataclass(frozen=True)
+class AngleIndex:
+    """Ordered pairs (a, b) of oriented map lines, sorted by δ = β_b − β_a ∈ [0, 2π).
+
+    Entries near 0 and 2π are repeated shifted by ∓2π so a window never needs to wrap. For each
+    pair the inverse of N = [[cos β_a, sin β_a], [cos β_b, sin β_b]] is stored: the position of a
+    hypothesis is then one 2×2 product, x = N⁻¹ (r − ρ).
+    """
+
+    delta: NDArray[np.float64]
+    beta_a: NDArray[np.float64]
+    beta_b: NDArray[np.float64]
+    r_a: NDArray[np.float64]
+    r_b: NDArray[np.float64]
+    n_inv: NDArray[np.float64]  # E×2×2
+    line_a: NDArray[np.intp]
+    line_b: NDArray[np.intp]
+
+
+@dataclass(frozen=True)
+class WallDistance:
+    """Distance (m) from each cell centre to the nearest wall; ``origin`` is the lower-left corner
+    of cell (0, 0), rows along y. Points outside the grid are infinitely far from walls."""
+
+    distance: NDArray[np.float32]
+    origin: NDArray[np.float64]
+    cell: float
+
+    def lookup(self, x: NDArray, y: NDArray) -> NDArray[np.float32]:
+        """Distances at world points (any shape), O(1) each."""
+        ix = np.floor((x - self.origin[0]) / self.cell).astype(np.intp)
+        iy = np.floor((y - self.origin[1]) / self.cell).astype(np.intp)
+        h, w = self.distance.shape
+        inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
+        out = self.distance[np.clip(iy, 0, h - 1), np.clip(ix, 0, w - 1)]
+        return np.where(inside, out, np.float32(np.inf))
+
+
+_CACHE: weakref.WeakKeyDictionary[SegmentMap, dict] = weakref.WeakKeyDictionary()
+
+
+def _cached(map: SegmentMap, key: tuple, build):
+    """Per-map memo (dropped with the map): the index and the grid are built once per map."""
+    store = _CACHE.setdefault(map, {})
+    if key not in store:
+        store[key] = build()
+    return store[key]
+
+
+def map_lines_of_kinds(map: SegmentMap, kinds: tuple[str, ...]) -> NDArray[np.intp]:
+    """Canonical lines with at least one segment of the given kinds."""
+    segs = np.isin(map.kinds, kinds)
+    return np.unique(map.line_of_segment[segs])
+
+
+def angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float,
+                pad: float) -> AngleIndex:
+    """The (cached) angle index of a map's oriented line pairs; ``pad`` ≥ the widest window."""
+    return _cached(map, ("angle_index", kinds, min_angle, pad),
+                   lambda: _build_angle_index(map, kinds, min_angle, pad))
+
+
+def _build_angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float,
+                       pad: float) -> AngleIndex:
+    lines = map_lines_of_kinds(map, kinds)
+    beta = np.concatenate((map.line_alpha[lines], map.line_alpha[lines] + np.pi))
+    r = np.concatenate((map.line_r[lines], -map.line_r[lines]))
+    line = np.concatenate((lines, lines))
+    a, b = np.meshgrid(np.arange(len(beta)), np.arange(len(beta)), indexing="ij")
+    a, b = a.ravel(), b.ravel()
+    delta = np.mod(beta[b] - beta[a], TWO_PI)
+    keep = (line[a] != line[b]) & (np.abs(np.sin(delta)) >= math.sin(min_angle))
+    a, b, delta = a[keep], b[keep], delta[keep]
+    # repeat the ends of the circle so that [δ − tol, δ + tol] is one contiguous range
+    low, high = delta < pad, delta > TWO_PI - pad
+    a = np.concatenate((a, a[low], a[high]))
+    b = np.concatenate((b, b[low], b[high]))
+    delta = np.concatenate((delta, delta[low] + TWO_PI, delta[high] - TWO_PI))
+    order = np.argsort(delta, kind="stable")
+    a, b, delta = a[order], b[order], delta[order]
+    ca, sa, cb, sb = np.cos(beta[a]), np.sin(beta[a]), np.cos(beta[b]), np.sin(beta[b])
+    det = ca * sb - sa * cb  # = sin δ, bounded away from 0 by min_angle
+    n_inv = np.stack((np.stack((sb, -sa), -1), np.stack((-cb, ca), -1)), -2) / det[:, None, None]
+    return AngleIndex(delta, beta[a], beta[b], r[a], r[b], n_inv, line[a], line[b])
+
+
+def wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
+                  margin: float = 1.0) -> WallDistance:
+    """The (cached) distance-transform grid of the map's segments of ``kinds``."""
+    return _cached(map, ("wall_distance", kinds, cell, margin),
+                   lambda: _build_wall_distance(map, kinds, cell, margin))
+
+
+def _build_wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
+                         margin: float) -> WallDistance:
+    segs = np.flatnonzero(np.isin(map.kinds, kinds))
+    ends = np.concatenate((map.starts[segs], map.ends[segs]))
+    origin = ends.min(axis=0) - margin
+    w, h = np.ceil((ends.max(axis=0) + margin - origin) / cell).astype(int) + 1
+    # walls are drawn as 0 on a 255 background; the transform gives each cell's distance (in
+    # cells, exact Euclidean) to the nearest wall pixel
+    image = np.full((h, w), 255, dtype=np.uint8)
+    shift = 4  # sub-pixel precision of the drawn segments
+    p0 = np.round((map.starts[segs] - origin) / cell * (1 << shift) - 0.5 * (1 << shift))
+    p1 = np.round((map.ends[segs] - origin) / cell * (1 << shift) - 0.5 * (1 << shift))
+    for a, b in zip(p0.astype(int), p1.astype(int), strict=True):  # once per map
+        cv2.line(image, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 0, 1, cv2.LINE_8, shift)
+    dist = cv2.distanceTransform(image, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
+    return WallDistance((dist * cell).astype(np.float32), origin, cell)
+
+
+# ---------------------------------------------------------------------------- the method
+def global_match(
+    lines: Lines,
+    points: ArrayLike,
+    map: SegmentMap,
+    config: GlobalMatchConfig = _DEFAULT_CONFIG,
+    kinds: tuple[str, ...] = ("wall",),
+) -> GlobalResult:
+    """Match the set of observed ``lines`` (robot frame, from ``points``) against the map's lines.
+
+    ``points`` (N×2, robot frame) are the accumulated points the lines were extracted from (e.g. by
+    :func:`houghloc.localize.observe_lines`). Returns every distinct hypothesis, best first; bad or
+    structureless input gives an empty result with a reason, never an exception.
+    """
+    kinds = tuple(kinds)
+    pts = _clean_points(points)
+    if pts is None:
+        return GlobalResult(reason="points must be an N×2 array of (x, y)")
+    if len(pts) == 0:
+        return GlobalResult(reason="no points")
+    if not np.isin(map.kinds, kinds).any():
+        return GlobalResult(reason=f"the map has no segment of kinds {kinds}")
+    if lines is None or len(lines) == 0:
+        return GlobalResult(reason="no observed lines")
+
+    pair_i, pair_k = observed_pairs(lines, config)
+    if len(pair_i) == 0:
+        return GlobalResult(reason=f"fewer than two non-parallel observed lines (angle ≥ "
+                            f"{config.min_pair_angle_deg:g}°): the pose is not determined")
+    pad = config.angle_tol_max + 1e-9
+    index = angle_index(map, kinds, config.min_pair_angle, pad)
+    if len(index.delta) == 0:
+        return GlobalResult(reason="the map has no two non-parallel lines")
+    poses = pair_hypotheses(lines, pair_i, pair_k, index, config)
+    poses = poses[_inside_map(poses, map, kinds, config.bbox_margin)]
+    n_candidates = len(poses)
+    if n_candidates == 0:
+        return GlobalResult(reason="no line pair gives a pose inside the map")
+
+    cells, votes = vote_cells(poses, config)
+    walls = wall_distance(map, kinds, config.dt_cell)
+    cheap = cheap_scores(cells, lines, walls, config)
+    top = _top(cheap + 1e-6 * votes / votes.max(), config.max_hypotheses_scored)
+    cells, cheap = cells[top], cheap[top]
+    if cheap[0] <= 0.0:
+        return GlobalResult(reason="no hypothesis puts an observed line on a wall",
+                            n_candidates=n_candidates)
+
+    sample = _subsample(len(pts), config.max_score_points)
+    pts_s, members_s = pts[sample], lines.members[sample]
+    scores = point_scores(cells, pts_s, members_s, walls, config)
+    keep = cluster(cells, scores.score, config)[: config.max_refined]
+    hyps = [_refined(cells[j], lines, pts, pts_s, members_s, map, walls, kinds, config)
+            for j in keep]
+    hyps = [h for h in hyps if h is not None and _valid(h, config)]
+    if not hyps:
+        return GlobalResult(reason=f"no hypothesis explains {config.min_lines_explained} "
+                            "non-parallel lines", n_candidates=n_candidates)
+    hyps.sort(key=lambda h: -h.score)
+    final = cluster(np.array([h.pose for h in hyps]), np.array([h.score for h in hyps]), config)
+    hyps = [hyps[j] for j in final]
+    return _decide(hyps, n_candidates, config)
+
+
+def _decide(hyps: list[Hypothesis], n_candidates: int, config: GlobalMatchConfig) -> GlobalResult:
+    best = hyps[0]
+    tied = [h for h in hyps if h.score >= best.score - config.tie_margin]
+    summary = (f"best explains {best.n_lines_explained} lines, "
+               f"{100 * best.inlier_fraction:.0f}% of points on walls (score {best.score:.2f})")
+    if len(tied) > 1:
+        return GlobalResult(hyps, True, f"{len(tied)} hypotheses within {config.tie_margin:g} "
+                            f"of the best score: keep collecting views; {summary}", n_candidates)
+    return GlobalResult(hyps, False, summary, n_candidates)
+
+
+# ---------------------------------------------------------------------------- 1. hypotheses
+def observed_pairs(lines: Lines, config: GlobalMatchConfig
+                   ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Index pairs (i, k), i ≠ k unordered, of strong non-parallel observed lines.
+
+    The best-conditioned pairs come first: long lines (well-determined θ) meeting near 90°
+    (well-determined position); only ``max_observed_pairs`` are kept, because one correct pair
+    already gives the pose and every pair multiplies the hypotheses.
+    """
+    strong = np.argsort(-lines.n, kind="stable")[: config.max_observed_lines]
+    i, k = np.triu_indices(len(strong), 1)
+    i, k = strong[i], strong[k]
+    sin_d = np.abs(np.sin(lines.theta[k] - lines.theta[i]))
+    ok = sin_d >= math.sin(config.min_pair_angle)
+    i, k, sin_d = i[ok], k[ok], sin_d[ok]
+    length = lines.s1 - lines.s0
+    quality = length[i] * length[k] * sin_d
+    order = np.argsort(-quality, kind="stable")[: config.max_observed_pairs]
+    return i[order], k[order]
+
+
+def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
+                    index: AngleIndex, config: GlobalMatchConfig) -> NDArray[np.float64]:
+    """All poses (H×3) from observed pairs and the map pairs with the same angle between them.
+
+    The window half-width is ``angle_tol_sigmas`` σ_δ + ``angle_tol_floor`` (capped), with
+    σ_δ² = var θ_i + var θ_k from the lines' covariance. The ragged candidate ranges are expanded
+    without a Python loop (repeat + arange).
+    """
+    d_obs = np.mod(lines.theta[pair_k] - lines.theta[pair_i], TWO_PI)
+    sigma = np.sqrt(lines.cov[pair_i, 0, 0] + lines.cov[pair_k, 0, 0])
+    tol = np.minimum(config.angle_tol_sigmas * sigma + config.angle_tol_floor,
+                     config.angle_tol_max)
+    lo = np.searchsorted(index.delta, d_obs - tol, side="left")
+    hi = np.searchsorted(index.delta, d_obs + tol, side="right")
+    counts = hi - lo
+    which = np.repeat(np.arange(len(pair_i)), counts)
+    entry = lo[which] + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    i, k = pair_i[which], pair_k[which]
+    # θ = β − θ_obs from either line; their circular mean
+    th_a = index.beta_a[entry] - lines.theta[i]
+    th_b = index.beta_b[entry] - lines.theta[k]
+    theta = wrap_angle(th_a + 0.5 * wrap_angle(th_b - th_a))
+    rhs = np.stack((index.r_a[entry] - lines.rho[i], index.r_b[entry] - lines.rho[k]), -1)
+    xy = np.einsum("hij,hj->hi", index.n_inv[entry], rhs)
+    return np.column_stack((xy, theta))
+
+
+def _inside_map(poses: NDArray, map: SegmentMap, kinds: tuple[str, ...],
+                margin: float) -> NDArray[np.bool_]:
+    lo, hi = _bbox(map, kinds)
+    xy = poses[:, :2]
+    return np.all((xy >= lo - margin) & (xy <= hi + margin), axis=1)
+
+
+def _bbox(map: SegmentMap, kinds: tuple[str, ...]) -> tuple[NDArray, NDArray]:
+    segs = np.isin(map.kinds, kinds)
+    ends = np.concatenate((map.starts[segs], map.ends[segs]))
+    return ends.min(axis=0), ends.max(axis=0)
+
+
+# ---------------------------------------------------------------------------- 2. votes
+def vote_cells(poses: NDArray, config: GlobalMatchConfig) -> tuple[NDArray, NDArray]:
+    """Bin poses in (x, y, θ); return one pose per occupied cell (its members' mean) and the count
+    of hypotheses in it, best-voted first, at most ``max_cells_cheap``."""
+    q = np.column_stack((np.floor(poses[:, :2] / config.vote_cell_xy),
+                         np.floor(np.mod(poses[:, 2], TWO_PI) / config.vote_cell_theta)))
+    q = q.astype(np.int64)
+    q -= q.min(axis=0)
+    # one integer key per cell: a 1-D unique is several times faster than unique over rows
+    key = np.ravel_multi_index(q.T, tuple(q.max(axis=0) + 1))
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    n_cells = len(counts)
+    # mean pose per cell: positions averaged, θ as a circular mean
+    sums = np.zeros((n_cells, 4))
+    for col, values in enumerate((poses[:, 0], poses[:, 1], np.cos(poses[:, 2]),
+                                  np.sin(poses[:, 2]))):
+        sums[:, col] = np.bincount(inverse, values, minlength=n_cells)
+    cells = np.column_stack((sums[:, :2] / counts[:, None], np.arctan2(sums[:, 3], sums[:, 2])))
+    order = _top(counts.astype(float), config.max_cells_cheap)
+    return cells[order], counts[order]
+
+
+def _top(values: NDArray, m: int) -> NDArray[np.intp]:
+    """Indices of the m largest values, largest first (a partition, then a small sort)."""
+    if len(values) > m:
+        part = np.argpartition(-values, m - 1)[:m]
+    else:
+        part = np.arange(len(values))
+    return part[np.argsort(-values[part], kind="stable")]
+
+
+# ---------------------------------------------------------------------------- 3–4. scores
+def _to_world(poses: NDArray, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
+    """Robot-frame coordinates (any shape S) at each pose: (H×S world x, H×S world y)."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    shape = (len(poses),) + (1,) * np.ndim(x)
+    c, s = c.reshape(shape), s.reshape(shape)
+    return (poses[:, 0].reshape(shape) + c * x - s * y,
+            poses[:, 1].reshape(shape) + s * x + c * y)
+
+
+def _chunks(n_rows: int, cost_per_row: int, budget: int = 2_000_000):
+    step = max(1, budget // max(cost_per_row, 1))
+    for start in range(0, n_rows, step):
+        yield slice(start, min(start + step, n_rows))
+
+
+def cheap_scores(poses: NDArray, lines: Lines, walls: WallDistance,
+                 config: GlobalMatchConfig) -> NDArray[np.float64]:
+    """Point-count-weighted fraction of observed lines whose samples lie on walls (H,).
+
+    Line k is sampled at S evenly spaced points ρ n_k + s t_k, s ∈ [s0, s1]; it counts when
+    ≥ ``min_line_coverage`` of its samples are within ``inlier_distance`` of a wall.
+    """
+    u = np.linspace(0.0, 1.0, config.line_samples)
+    s = lines.s0[:, None] + u[None, :] * (lines.s1 - lines.s0)[:, None]  # K×S
+    c, sn = np.cos(lines.theta)[:, None], np.sin(lines.theta)[:, None]
+    px, py = lines.rho[:, None] * c - s * sn, lines.rho[:, None] * sn + s * c
+    weight = lines.n / lines.n.sum()
+    out = np.empty(len(poses))
+    for sl in _chunks(len(poses), px.size):
+        wx, wy = _to_world(poses[sl], px, py)  # H×K×S
+        on_wall = walls.lookup(wx, wy) <= config.inlier_distance
+        explained = on_wall.mean(axis=2) >= config.min_line_coverage
+        out[sl] = explained @ weight
+    return out
+
+
+@dataclass(frozen=True)
+class PointScores:
+    score: NDArray[np.float64]
+    inlier_fraction: NDArray[np.float64]
+    n_explained: NDArray[np.intp]
+    explained: NDArray[np.bool_]  # H×K
+
+
+def point_scores(poses: NDArray, points: NDArray, members: NDArray[np.bool_],
+                 walls: WallDistance, config: GlobalMatchConfig,
+                 visible: NDArray[np.bool_] | None = None) -> PointScores:
+    """Score every pose with all (subsampled) points, in chunks of hypotheses × points.
+
+    inlier_fraction = mean over points of [d(point) ≤ inlier_distance]; line k is explained when
+    the fraction of its member points on walls reaches ``min_line_coverage``;
+    score = w · Σ_k n_k [explained_k] / Σ_k n_k + (1 − w) · inlier_fraction.
+    ``visible`` (H×N), when given, removes the points seen through a wall from the inliers.
+    """
+    m = members.astype(np.float32)
+    n_k = m.sum(axis=0)
+    weight = n_k / max(float(n_k.sum()), 1.0)
+    inliers = np.empty(len(poses))
+    explained = np.empty((len(poses), members.shape[1]), dtype=bool)
+    for sl in _chunks(len(poses), len(points)):
+        wx, wy = _to_world(poses[sl], points[:, 0], points[:, 1])  # H×N
+        on_wall = walls.lookup(wx, wy) <= config.inlier_distance
+        if visible is not None:
+            on_wall &= visible[sl]
+        on_wall = on_wall.astype(np.float32)
+        inliers[sl] = on_wall.mean(axis=1)
+        covered = (on_wall @ m) / np.maximum(n_k, 1.0)
+        explained[sl] = (covered >= config.min_line_coverage) & (n_k > 0)
+    w = config.line_weight
+    score = w * (explained @ weight) + (1.0 - w) * inliers
+    return PointScores(score, inliers, explained.sum(axis=1), explained)
+
+
+# ---------------------------------------------------------------------------- 5. clusters
+def cluster(poses: NDArray, scores: NDArray, config: GlobalMatchConfig) -> list[int]:
+    """Greedy non-maximum suppression in pose space: the best pose absorbs every pose within
+    ``cluster_xy`` and ``cluster_theta`` of it. Returns the kept indices, best first (the loop runs
+    once per cluster, not per pose)."""
+    order = np.argsort(-scores, kind="stable")
+    alive = np.ones(len(poses), dtype=bool)
+    kept: list[int] = []
+    for j in order:
+        if not alive[j]:
+            continue
+        kept.append(int(j))
+        near = (np.hypot(*(poses[:, :2] - poses[j, :2]).T) <= config.cluster_xy) & (
+            np.abs(wrap_angle(poses[:, 2] - poses[j, 2])) <= config.cluster_theta)
+        alive &= ~near
+        if not alive.any():
+            break
+    return kept
+
+
+def _refined(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_s: NDArray,
+             map: SegmentMap, walls: WallDistance, kinds: tuple[str, ...],
+             config: GlobalMatchConfig) -> Hypothesis | None:
+    """Weighted least squares on the lines matched at a hypothesis (DESIGN §3.5), then rescored.
+
+    The hypothesis is treated as a guess with a tight prior (``refine_sigma_*``): the Hough-domain
+    gates of :func:`associate` then only admit the lines that this pose explains.
+    """
+    hc = config.hough
+    max_range = float(np.sqrt((pts**2).sum(axis=1).max())) + 0.5
+    prior = np.diag([config.refine_sigma_xy**2] * 2 + [config.refine_sigma_theta**2])
+    pose = np.array([pose[0], pose[1], float(wrap_angle(pose[2]))])
+    disp, matches, refs = None, None, None
+    for _ in range(config.refine_iterations):
+        refs = map.references(pose, max_range, kinds, hc.visibility_rays)
+        matches = associate(lines, refs, pose, prior, hc)
+        if len(matches) == 0:
+            return None
+        disp = estimate_displacement(matches, refs.beta[matches.ref], hc.max_observable_sigma)
+        if disp.rank < 3:
+            return None
+        pose = pose + disp.delta
+        pose[2] = float(wrap_angle(pose[2]))
+    # the covariance belongs to the last linearisation point: one more (cheap) solve there
+    refs = map.references(pose, max_range, kinds, hc.visibility_rays)
+    matches = associate(lines, refs, pose, prior, hc)
+    if len(matches) == 0:
+        return None
+    disp = estimate_displacement(matches, refs.beta[matches.ref], hc.max_observable_sigma)
+    if disp.rank < 3:
+        return None
+    visible = (seen_directly(pose, pts_s, map, kinds, max_range, config.visibility_margin)[None]
+               if config.check_visibility else None)
+    s = point_scores(pose[None, :], pts_s, members_s, walls, config, visible)
+    pairs = np.column_stack((matches.line, refs.line[matches.ref])).astype(np.intp)
+    return Hypothesis(pose, disp.cov, float(s.score[0]), int(s.n_explained[0]),
+                      float(s.inlier_fraction[0]), pairs)
+
+
+def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[str, ...],
+                  max_range: float, margin: float) -> NDArray[np.bool_]:
+    """Which robot-frame points the map lets the robot see from ``pose`` (N,).
+
+    The ray o + t (q − o), t ∈ (0, 1], from the robot o to the point q in the world crosses wall
+    segment p + u e, u ∈ [0, 1], where (Cramer's rule on o + t d = p + u e, d = q − o)
+        t = (w × e) / (d × e),   u = (w × d) / (d × e),   w = p − o.
+    A crossing more than ``margin`` before the point means the point was seen through that wall.
+    Only walls occlude; painted lines do not.
+    """
+    near = map.segments_near(pose[:2], max_range)
+    near = near[np.isin(map.kinds[near], kinds) & map.is_wall[near]]
+    if len(near) == 0 or len(points) == 0:
+        return np.ones(len(points), dtype=bool)
+    wx, wy = _to_world(pose[None, :], points[:, 0], points[:, 1])
+    d = np.column_stack((wx[0] - pose[0], wy[0] - pose[1]))  # N×2
+    w = map.starts[near] - pose[:2]  # S×2
+    e = map.ends[near] - map.starts[near]
+    den = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]  # N×S
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
+        u = (w[:, 0] * d[:, 1:] - w[:, 1] * d[:, :1]) / den
+    dist = np.hypot(d[:, 0], d[:, 1])
+    t_max = 1.0 - margin / np.maximum(dist, 1e-9)  # in units of the point's range
+    blocked = (np.abs(den) > 1e-12) & (t > 1e-6) & (t < t_max[:, None]) & (u >= 0) & (u <= 1)
+    return ~blocked.any(axis=1)
+
+
+def _valid(h: Hypothesis, config: GlobalMatchConfig) -> bool:
+    return h.n_lines_explained >= config.min_lines_explained and len(h.matches) >= 2
+
+
+# ---------------------------------------------------------------------------- input
+def _clean_points(points: ArrayLike) -> NDArray[np.float64] | None:
+    try:
+        pts = np.asarray(points, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if pts.size == 0:
+        return np.empty((0, 2))
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        return None
+    return pts[np.isfinite(pts).all(axis=1)]
+
+
+def _subsample(n: int, m: int) -> NDArray[np.intp]:
+    """At most m of n indices, evenly strided (deterministic; keeps every line's share)."""
+    if n <= m:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, m).astype(np.intp))
