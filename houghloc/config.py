@@ -56,6 +56,9 @@ class HoughConfig(BaseModel):
         0.6, gt=0.0, le=1.0, description="fraction of an observed piece that must lie on segments"
     )
     match_iterations: int = Field(2, ge=1, description="re-match at the corrected pose")
+    max_outlier_lines: int = Field(
+        2, ge=0, description="inconsistent matches that may be dropped when redundancy allows"
+    )
     max_observable_sigma: float = Field(
         0.5, gt=0.0, description="m; a direction known worse than this is reported unobservable"
     )

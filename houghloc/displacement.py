@@ -41,6 +41,7 @@ class Displacement:
     unobservable: NDArray[np.float64]  # 3×(3−rank)
     chi2: float  # Σ post-fit squared Mahalanobis residuals
     dof: int  # 2·matches − rank
+    per_match: NDArray[np.float64]  # each match's share of chi2
 
 
 def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
@@ -49,7 +50,7 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
     if len(matches) == 0:
         z = np.zeros((3, 0))
         return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
-                            z, np.eye(3), 0.0, 0)
+                            z, np.eye(3), 0.0, 0, np.zeros(0))
     # Per match, with n = (cos β, sin β), W = C⁻¹ = [[w00, w01], [w01, w11]] and residual r:
     # Jᵀ W J = [[w11 n nᵀ, w01 n], [w01 nᵀ, w00]],
     # Jᵀ W r = [−n (w01 r₀ + w11 r₁), −(w00 r₀ + w01 r₁)].
@@ -93,7 +94,8 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
     post_0 = r0 + delta[2]  # residual after the correction: r − J Δ
     post_1 = r1 + nx * delta[0] + ny * delta[1]
-    chi2_total = float((w00 * post_0**2 + 2 * w01 * post_0 * post_1 + w11 * post_1**2).sum())
+    per_match = w00 * post_0**2 + 2 * w01 * post_0 * post_1 + w11 * post_1**2
+    chi2_total = float(per_match.sum())
     rank = u.shape[1]
     return Displacement(delta, 0.5 * (cov + cov.T), info, rank, u, v, chi2_total,
-                        max(2 * len(matches) - rank, 0))
+                        max(2 * len(matches) - rank, 0), per_match)

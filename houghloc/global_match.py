@@ -34,7 +34,8 @@ Cost: with K observed lines (P ≤ ``max_observed_pairs`` pairs), L map lines an
 index is built once per map in O(L² log L); generation is O(P log L² + H); the votes O(H log H);
 the cheap score O(C·K·S) for C ≤ ``max_cells_cheap`` cells and S samples per line; the full score
 O(M·N) for M ≤ ``max_hypotheses_scored`` and N ≤ ``max_score_points``. Only generation and votes
-grow with the map (H ∝ the number of map pairs at each observed angle).
+grow with the map: H ∝ the number of map pairs at each observed angle, until it reaches
+``max_pair_hypotheses``; beyond that only the best-conditioned observed pairs are expanded.
 """
 
 from __future__ import annotations
@@ -71,12 +72,16 @@ class GlobalMatchConfig(BaseModel):
         12, ge=2, description="the strongest lines (most points) form the pairs")
     max_observed_pairs: int = Field(
         40, ge=1, description="best-conditioned pairs kept (length product × |sin δ|)")
+    max_pair_hypotheses: int = Field(
+        150_000, ge=1, description="budget of hypotheses; best-conditioned pairs go first")
     bbox_margin: float = Field(0.0, ge=0.0, description="m; poses beyond the map's box are dropped")
     # --- pose-space votes and cheap score
     vote_cell_xy: float = Field(0.25, gt=0.0, description="m")
     vote_cell_theta_deg: float = Field(3.0, gt=0.0)
-    max_cells_cheap: int = Field(4000, ge=1, description="best-voted cells given the cheap score")
-    line_samples: int = Field(8, ge=2, description="samples along each line for the cheap score")
+    max_cells_cheap: int = Field(
+        30_000, ge=1, description="best-voted cells given the cheap score")
+    line_samples: int = Field(4, ge=2, description="samples along each line for the cheap score")
+    cheap_lines: int = Field(6, ge=2, description="strongest lines sampled for the cheap score")
     # --- full score
     max_hypotheses_scored: int = Field(
         120, ge=1, description="top-M by the cheap score that get the point-based score")
@@ -198,13 +203,14 @@ class WallDistance:
     cell: float
 
     def lookup(self, x: NDArray, y: NDArray) -> NDArray[np.float32]:
-        """Distances at world points (any shape), O(1) each."""
-        ix = np.floor((x - self.origin[0]) / self.cell).astype(np.intp)
-        iy = np.floor((y - self.origin[1]) / self.cell).astype(np.intp)
+        """Distances at world points (any shape), O(1) each.
+
+        The grid's outermost ring holds +inf, so clipping the indices is the only bounds check.
+        """
         h, w = self.distance.shape
-        inside = (ix >= 0) & (ix < w) & (iy >= 0) & (iy < h)
-        out = self.distance[np.clip(iy, 0, h - 1), np.clip(ix, 0, w - 1)]
-        return np.where(inside, out, np.float32(np.inf))
+        ix = ((x - self.origin[0]) * (1.0 / self.cell)).astype(np.intp)  # ≥ 0 inside: truncation
+        iy = ((y - self.origin[1]) * (1.0 / self.cell)).astype(np.intp)  # is floor there
+        return self.distance.ravel()[np.clip(iy, 0, h - 1) * w + np.clip(ix, 0, w - 1)]
 
 
 _CACHE: weakref.WeakKeyDictionary[SegmentMap, dict] = weakref.WeakKeyDictionary()
@@ -276,8 +282,9 @@ def _build_wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
     p1 = np.round((map.ends[segs] - origin) / cell * (1 << shift) - 0.5 * (1 << shift))
     for a, b in zip(p0.astype(int), p1.astype(int), strict=True):  # once per map
         cv2.line(image, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 0, 1, cv2.LINE_8, shift)
-    dist = cv2.distanceTransform(image, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
-    return WallDistance((dist * cell).astype(np.float32), origin, cell)
+    dist = (cv2.distanceTransform(image, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * cell)
+    dist[[0, -1], :] = dist[:, [0, -1]] = np.inf  # off the grid is far from every wall
+    return WallDistance(dist.astype(np.float32), origin, cell)
 
 
 # ---------------------------------------------------------------------------- the method
@@ -390,7 +397,7 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
                      config.angle_tol_max)
     lo = np.searchsorted(index.delta, d_obs - tol, side="left")
     hi = np.searchsorted(index.delta, d_obs + tol, side="right")
-    counts = hi - lo
+    counts = _within_budget(hi - lo, config.max_pair_hypotheses)
     which = np.repeat(np.arange(len(pair_i)), counts)
     entry = lo[which] + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     i, k = pair_i[which], pair_k[which]
@@ -401,6 +408,21 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
     rhs = np.stack((index.r_a[entry] - lines.rho[i], index.r_b[entry] - lines.rho[k]), -1)
     xy = np.einsum("hij,hj->hi", index.n_inv[entry], rhs)
     return np.column_stack((xy, theta))
+
+
+def _within_budget(counts: NDArray[np.intp], budget: int) -> NDArray[np.intp]:
+    """Candidate counts with the pairs beyond the budget set to zero.
+
+    The index tells, before any pose is computed, how many map pairs each observed pair matches.
+    Pairs arrive best-conditioned first (long lines, well-determined angles); they are taken in
+    that order while the total stays within ``budget`` (the first always), so in a large map of
+    right angles, where every pair matches thousands of map pairs, the cost stops growing with
+    the square of the map. (Taking the rarest angles first would be cheaper still, but a rare
+    angle is most often a short spurious piece.)
+    """
+    take = np.cumsum(counts) <= budget
+    take[0] = True
+    return np.where(take, counts, 0)
 
 
 def _inside_map(poses: NDArray, map: SegmentMap, kinds: tuple[str, ...],
@@ -465,15 +487,18 @@ def _chunks(n_rows: int, cost_per_row: int, budget: int = 2_000_000):
 
 def cheap_scores(poses: NDArray, lines: Lines, walls: WallDistance,
                  config: GlobalMatchConfig) -> NDArray[np.float64]:
-    """Point-count-weighted fraction of observed lines whose samples lie on walls (H,).
+    """Point-count-weighted fraction of the ``cheap_lines`` strongest observed lines whose samples
+    lie on walls (H,).
 
     Line k is sampled at S evenly spaced points ρ n_k + s t_k, s ∈ [s0, s1]; it counts when
     ≥ ``min_line_coverage`` of its samples are within ``inlier_distance`` of a wall.
     """
+    lines = lines.subset(np.argsort(-lines.n, kind="stable")[: config.cheap_lines])
     u = np.linspace(0.0, 1.0, config.line_samples)
     s = lines.s0[:, None] + u[None, :] * (lines.s1 - lines.s0)[:, None]  # K×S
     c, sn = np.cos(lines.theta)[:, None], np.sin(lines.theta)[:, None]
-    px, py = lines.rho[:, None] * c - s * sn, lines.rho[:, None] * sn + s * c
+    px = (lines.rho[:, None] * c - s * sn).astype(np.float32)
+    py = (lines.rho[:, None] * sn + s * c).astype(np.float32)
     weight = lines.n / lines.n.sum()
     out = np.empty(len(poses))
     for sl in _chunks(len(poses), px.size):

@@ -132,12 +132,13 @@ def localize_scan(
         raise ValueError("pose_cov must be a finite 3×3 matrix")
     pose, cov, offset = guess, prior, np.zeros(3)
     for _ in range(config.match_iterations):
-        matches = associate(lines, shift_references(refs, offset), pose, cov, config)
-        disp = estimate_displacement(matches, _beta(refs, offset)[matches.ref],
+        base = offset  # the matches' residuals are relative to guess + base
+        matches = associate(lines, shift_references(refs, base), pose, cov, config)
+        disp = estimate_displacement(matches, _beta(refs, base)[matches.ref],
                                      config.max_observable_sigma)
         if disp.rank == 0:
             break
-        offset = offset + disp.delta
+        offset = base + disp.delta
         pose = _apply(guess, offset)
         if len(matches.ambiguous_lines) == 0:
             break  # nothing left to resolve: the estimate is linear, one solve is exact
@@ -149,7 +150,21 @@ def localize_scan(
         return _empty(guess, reason, **stages) if not matches.reasons else _flagged(
             guess, reason, matches, stages)
 
-    reasons = list(matches.reasons)
+    # A line inconsistent with the others (obstacle points joined to a wall, a chance alignment)
+    # shows in the post-fit χ². While there is redundancy to tell, drop the worst and re-solve.
+    limit = config.max_outlier_lines
+    while (disp.dof > 0 and disp.chi2 > gate_threshold(config.gate_probability, disp.dof)
+           and len(matches) >= 3 and limit > 0):
+        worst = int(np.argmax(disp.per_match))
+        trial = matches.without(worst, f"dropped an inconsistent line (θ="
+                                f"{np.degrees(lines.theta[matches.line[worst]]):.1f}°)")
+        redo = estimate_displacement(trial, _beta(refs, base)[trial.ref],
+                                     config.max_observable_sigma)
+        if redo.rank < disp.rank:
+            break
+        offset, matches, disp, limit = base + redo.delta, trial, redo, limit - 1
+        pose = _apply(guess, offset)
+    reasons = [r for r in matches.reasons if not r.startswith("dropped")]
     if disp.dof > 0 and disp.chi2 > gate_threshold(config.gate_probability, disp.dof):
         reasons.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
     step = disp.observable.T @ np.array([offset[0], offset[1], wrap_angle(offset[2])])

@@ -44,6 +44,12 @@ class Matches:
     def __len__(self) -> int:
         return len(self.line)
 
+    def without(self, index: int, reason: str) -> Matches:
+        """These matches less one (an outlier found by the displacement's consistency test)."""
+        keep = np.arange(len(self.line)) != index
+        return Matches(self.line[keep], self.ref[keep], self.residual[keep], self.cov[keep],
+                       self.d2[keep], self.ambiguous_lines, (*self.reasons, reason))
+
 
 def hough_jacobians(beta: NDArray[np.float64]) -> NDArray[np.float64]:
     """J (L×2×3) of (θ_r, ρ_r) with respect to the pose, for world normal angles β."""
