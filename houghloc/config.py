@@ -41,6 +41,10 @@ class HoughConfig(BaseModel):
     min_line_length: float = Field(0.4, ge=0.0, description="m; shorter pieces are not lines")
     max_line_sigma: float = Field(0.05, gt=0.0, description="m; rougher fits are not lines")
     point_sigma_floor: float = Field(0.003, gt=0.0, description="m; floor on the fitted σ")
+    # Sensors whose noise grows with range (a camera's triangulation: σ = σ₀ + k·d²) weight each
+    # point by 1/σ²; 0 means uniform noise (a laser), and no weighting.
+    range_sigma_growth: float = Field(0.0, ge=0.0, description="k in σ = σ₀ + k·d², 1/m")
+    range_sigma_base: float = Field(0.01, gt=0.0, description="σ₀ in σ = σ₀ + k·d², m")
     line_theta_floor_deg: float = Field(0.01, ge=0.0, description="model error of a line's θ")
     line_rho_floor: float = Field(0.0005, ge=0.0, description="m; model error of a line's ρ")
     # --- map references (§3.4)

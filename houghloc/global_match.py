@@ -15,9 +15,10 @@ of map lines without any pose guess:
 2. *Pose-space votes.* Hypotheses outside the map's bounding box are dropped; the rest are binned
    in (x, y, θ): correct correspondences agree on one pose, wrong ones scatter, so the count per
    cell (the number of line pairs that support it) ranks the cells.
-3. *Cheap score.* For the best-voted cells, a few samples along each observed line are placed in
-   the world and looked up in a distance-transform grid of the map's walls (O(1) per sample): the
-   weighted fraction of lines lying on real walls (lines are infinite, segments are not).
+3. *Cheap score.* For the best-voted cells, a few samples along each of the strongest observed
+   lines are placed in the world and looked up in a distance-transform grid of the map's walls
+   (O(1) per sample): the weighted fraction of lines lying on real walls (lines are infinite,
+   segments are not).
 4. *Full score* of the top ``max_hypotheses_scored``: all points (subsampled) are looked up,
        score = w · (point-weighted fraction of lines explained) + (1 − w) · (fraction of points
        within ``inlier_distance`` of a wall),
@@ -40,6 +41,7 @@ grow with the map: H ∝ the number of map pairs at each observed angle, until i
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import weakref
 from dataclasses import dataclass, field
@@ -302,15 +304,22 @@ def global_match(
     structureless input gives an empty result with a reason, never an exception.
     """
     kinds = tuple(kinds)
-    pts = _clean_points(points)
+    pts = _as_points(points)
     if pts is None:
         return GlobalResult(reason="points must be an N×2 array of (x, y)")
-    if len(pts) == 0:
+    finite = np.isfinite(pts).all(axis=1)
+    if not finite.any():
         return GlobalResult(reason="no points")
     if not np.isin(map.kinds, kinds).any():
         return GlobalResult(reason=f"the map has no segment of kinds {kinds}")
     if lines is None or len(lines) == 0:
         return GlobalResult(reason="no observed lines")
+    if lines.members.shape[0] != len(pts):
+        return GlobalResult(reason=f"the lines were extracted from {lines.members.shape[0]} "
+                            f"points, not from these {len(pts)}")
+    if not finite.all():  # the lines' member rows follow the points: drop both together
+        pts = pts[finite]
+        lines = dataclasses.replace(lines, members=lines.members[finite])
 
     pair_i, pair_k = observed_pairs(lines, config)
     if len(pair_i) == 0:
@@ -638,7 +647,8 @@ def _valid(h: Hypothesis, config: GlobalMatchConfig) -> bool:
 
 
 # ---------------------------------------------------------------------------- input
-def _clean_points(points: ArrayLike) -> NDArray[np.float64] | None:
+def _as_points(points: ArrayLike) -> NDArray[np.float64] | None:
+    """An N×2 float array (N may be 0), or None when ``points`` cannot be one."""
     try:
         pts = np.asarray(points, dtype=float)
     except (TypeError, ValueError):
@@ -647,7 +657,7 @@ def _clean_points(points: ArrayLike) -> NDArray[np.float64] | None:
         return np.empty((0, 2))
     if pts.ndim != 2 or pts.shape[1] != 2:
         return None
-    return pts[np.isfinite(pts).all(axis=1)]
+    return pts
 
 
 def _subsample(n: int, m: int) -> NDArray[np.intp]:

@@ -85,7 +85,12 @@ def observe_lines(points: NDArray[np.float64], config: HoughConfig
     peaks = find_peaks(acc, len(points), config, limit=2 * config.max_peaks)
     theta0, rho0 = grid.cell_center(peaks.i_theta, peaks.i_rho)
     if config.refine:
-        lines = refine_lines(points, theta0, rho0, config)
+        weights = None
+        if config.range_sigma_growth > 0:  # σᵢ = σ₀ + k·dᵢ²: weight 1/σᵢ², relative (mean 1)
+            sigma = config.range_sigma_base + config.range_sigma_growth * (points**2).sum(axis=1)
+            weights = 1.0 / sigma**2
+            weights *= len(weights) / weights.sum()
+        lines = refine_lines(points, theta0, rho0, config, weights)
     else:
         lines = _grid_lines(points, theta0, rho0, peaks.votes, grid)
     if len(lines) > config.max_peaks:
@@ -167,10 +172,11 @@ def localize_scan(
     reasons = [r for r in matches.reasons if not r.startswith("dropped")]
     if disp.dof > 0 and disp.chi2 > gate_threshold(config.gate_probability, disp.dof):
         reasons.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
+    # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
+    # directions, against the χ² gate (a filter will run the same test on its innovation).
     step = disp.observable.T @ np.array([offset[0], offset[1], wrap_angle(offset[2])])
-    prior_obs = disp.observable.T @ prior @ disp.observable
-    if step @ np.linalg.solve(prior_obs, step) > gate_threshold(config.gate_probability,
-                                                                disp.rank):
+    both = disp.observable.T @ (prior + disp.cov) @ disp.observable
+    if step @ np.linalg.solve(both, step) > gate_threshold(config.gate_probability, disp.rank):
         reasons.append("correction far outside the guess's uncertainty")
     if disp.rank < 3:
         reasons.insert(0, f"rank {disp.rank}: unobservable along "

@@ -56,18 +56,21 @@ class Lines:
         )
 
 
-def _moments(points: NDArray) -> NDArray:
-    """Per-point monomials [1, x, y, x², xy, y²]: one product with a mask gives all line sums."""
+def _moments(points: NDArray, weights: NDArray | None = None) -> NDArray:
+    """Per-point monomials w·[1, x, y, x², xy, y²]: one product with a mask gives all line sums
+    (weighted sums when the points have weights)."""
     x, y = points[:, 0], points[:, 1]
-    return np.column_stack((np.ones(len(points)), x, y, x * x, x * y, y * y))
+    mono = np.column_stack((np.ones(len(points)), x, y, x * x, x * y, y * y))
+    return mono if weights is None else mono * weights[:, None]
 
 
 def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
     """Total-least-squares lines through the masked points of each column.
 
     The scatter matrix comes from the masked sums (Mᵀ·[1, x, y, x², xy, y²]); the normal is the
-    eigenvector of its smallest eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, residual variance σ²,
-    count N, centroid c (K×2), and the variance along the line (spread of the points).
+    eigenvector of its smallest eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, the mean square
+    residual Σwr²/W, the weight W = Σw (the count N for unit weights), the centroid c (K×2) and
+    the variance along the line (the spread of the points).
     """
     sums = mask.T.astype(np.float64) @ monomials  # K×6
     n = sums[:, 0]
@@ -82,8 +85,7 @@ def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
     lam_max = 0.5 * (sxx + syy) + root
     rho = cx * np.cos(theta) + cy * np.sin(theta)
     theta = np.where(rho < 0, theta + np.pi, theta) % TWO_PI
-    var = lam_min * n / np.maximum(n - 2.0, 1.0)
-    return theta, np.abs(rho), var, n, np.column_stack((cx, cy)), lam_max
+    return theta, np.abs(rho), lam_min, n, np.column_stack((cx, cy)), lam_max
 
 
 def _split_pieces(s: NDArray, mask: NDArray, config: HoughConfig) -> NDArray[np.bool_]:
@@ -117,11 +119,13 @@ def _split_pieces(s: NDArray, mask: NDArray, config: HoughConfig) -> NDArray[np.
     return mask & good_cell[flat]
 
 
-def refine_lines(
-    points: NDArray[np.float64], theta0: NDArray, rho0: NDArray, config: HoughConfig
-) -> Lines:
-    """Refine peaks (θ₀, ρ₀) to TLS lines with covariances; drop those that are not lines."""
-    monomials = _moments(points)
+def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
+                 config: HoughConfig, weights: NDArray | None = None) -> Lines:
+    """Refine peaks (θ₀, ρ₀) to TLS lines with covariances; drop those that are not lines.
+
+    ``weights`` (relative, mean 1) make it a weighted TLS: var θ = σ²/Σwᵢ(sᵢ − s̄)², var = σ²/Σwᵢ.
+    """
+    monomials = _moments(points, weights)
     max_band = config.refine_max_band or config.rho_step
     band = max_band  # first pass: one cell (or the widest band) either side of the peak
     theta, rho = np.asarray(theta0, float), np.asarray(rho0, float)
@@ -144,7 +148,9 @@ def refine_lines(
         mask[rows, nearest] = dist[rows, nearest] <= 1.0
     normal = np.vstack((np.cos(theta), np.sin(theta)))
     mask = _split_pieces(points @ np.vstack((-normal[1], normal[0])), mask, config)
-    theta, rho, var, n, c, spread_var = _tls(monomials, mask)
+    theta, rho, mean_sq, weight, c, spread_var = _tls(monomials, mask)
+    n = mask.sum(axis=0) if weights is not None else weight
+    var = mean_sq * weight / np.maximum(n - 2.0, 1.0)  # σ² = Σwr² / (N − 2), unbiased
 
     sigma = np.sqrt(var)
     t = np.vstack((-np.sin(theta), np.cos(theta)))
@@ -158,8 +164,8 @@ def refine_lines(
         & (s1 - s0 >= config.min_line_length)
     )
     var_eff = np.maximum(var, config.point_sigma_floor**2)
-    v_theta = var_eff / np.maximum(spread_var * n, 1e-12)  # σ² / Σ(sᵢ − s̄)²
-    v_off = var_eff / np.maximum(n, 1.0)  # σ² / N
+    v_theta = var_eff / np.maximum(spread_var * weight, 1e-12)  # σ² / Σwᵢ(sᵢ − s̄)²
+    v_off = var_eff / np.maximum(weight, 1e-12)  # σ² / Σwᵢ
     cov = np.empty((len(theta), 2, 2))
     cov[:, 0, 0] = v_theta
     cov[:, 0, 1] = cov[:, 1, 0] = s_bar * v_theta

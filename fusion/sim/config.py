@@ -52,6 +52,10 @@ class CameraConfig(_Model):
     with the square of the distance d); ``false_points`` is the mean (Poisson) number of isolated
     false points per frame, uniform over the sector's area. A frame's data is taken at ``t`` and
     arrives at ``t + latency``.
+
+    Default noise: a camera 0.6 m above the floor with a 550 px focal length and one pixel of
+    line-detection error has a range error of about d²/(h·f) ≈ 0.003·d²; k = 0.004 adds some
+    margin (7 cm at 4 m), σ₀ = 1 cm covers calibration.
     """
 
     fov_deg: float = Field(60.0, gt=0.0, lt=180.0)
@@ -59,7 +63,7 @@ class CameraConfig(_Model):
     max_range: float = Field(4.0, gt=0.0)
     point_spacing: float = Field(0.05, gt=0.0)
     sigma0: float = Field(0.01, ge=0.0)
-    k: float = Field(0.01, ge=0.0)
+    k: float = Field(0.004, ge=0.0)
     false_points: float = Field(3.0, ge=0.0)
     see_obstacles: bool = True
     rate: float = Field(5.0, gt=0.0, description="frames per second")

@@ -1,0 +1,740 @@
+"""Every stage of the pipeline recorded to Rerun (DESIGN §5): the logger the pipeline is given
+when somebody wants to look. Its public methods are exactly those of
+:class:`fusion.visualize.NullLogger`.
+
+Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D transform)::
+
+    world/map/walls, world/map/lines          LineStrips2D, static. A wall takes the colour of its
+                                              map line (the colour of the points that match it);
+                                              painted lines are white and thinner
+    world/scan/points                         the scan at the estimated pose, each point in the
+                                              colour of the map line its observed line matched;
+                                              on an unmatched observed line light grey, else grey
+    world/scan/<sensor>/points                the same for every sensor after the first one seen
+    world/robot/estimate                      Arrows2D, coloured by the measurement's status
+    world/robot/covariance                    95 % ellipse of the x-y covariance (LineStrips2D)
+    world/robot/truth                         Arrows2D, when ground truth is logged
+    world/path/{estimate,odometry,truth}/<k>  the paths, in pieces (see below); odometry is
+                                              est₀ ⊕ (odom₀⁻¹ ⊕ odomₖ), anchored at the first scan
+    hough/accumulator                         DepthImage of the votes, viridis colour map
+    hough/peaks, hough/references             Points2D in accumulator pixels (references labelled
+                                              with their segment ids)
+    hough/matches                             LineStrips2D, observed line → its reference point
+    metrics/innovation/{x,y,theta}, metrics/nis, metrics/sigma/{x,y,theta}, metrics/matches,
+    metrics/error/{position,heading}          Scalars (errors: truth interpolated at the scan)
+    log/state                                 TextLog: the ambiguity manager's state and reason
+    log/scan                                  TextLog: why a scan was not used (not "accepted")
+    global/hypotheses                         Arrows2D with the scores as labels
+
+Timelines: ``time`` (sensor seconds: a duration for simulated clocks, a timestamp once the clock
+looks like Unix time) and ``scan`` (sequence; events between scans carry only ``time``).
+Angles in the time series are in degrees, lengths in metres.
+
+The Hough image is the accumulator as it is stored (no copy): one row per θ cell, one column per
+ρ cell, so ρ runs left to right from ``rho_min`` and θ top to bottom from 0. Cell (i_θ, i_ρ) is
+the pixel square [i_ρ, i_ρ+1) × [i_θ, i_θ+1), and a continuous (θ, ρ) is drawn at
+u = (ρ − ρ_min)/δρ, v = θ/δθ + ½ (θ cell i is centred on iδθ; ρ cell j spans an interval).
+
+Speed: one ``log`` call costs ~100 µs whatever its size, so per-scan data is buffered and sent
+with one ``send_columns`` call per entity every ``BATCH_SCANS`` scans or ``BATCH_SECONDS`` of
+wall time (a live viewer lags at most that) and at :meth:`RerunLogger.flush`. Only the Hough
+image (where the cost is per pixel), the state log and the hypotheses are logged at once.
+
+Paths are logged in pieces because the viewer shows the latest value of an entity: a path must
+be re-sent whole to grow, quadratic in the length of the run. Each piece holds at most
+``PATH_PIECE`` poses (and starts at the end of the previous one); finished pieces stay visible.
+
+Rerun's 2D views draw +y downwards (rerun issue #1387: no view coordinates for 2D views yet), so
+the world view is the map mirrored top to bottom; hovering shows true map coordinates.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+import subprocess
+import time
+import uuid
+from collections import deque
+from pathlib import Path
+from typing import Any
+from urllib.parse import quote
+
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+import rerun.blueprint as rrb
+from numpy.typing import ArrayLike, NDArray
+
+from houghloc.geometry import compose, relative, transform_points, wrap_angle
+
+_log = logging.getLogger(__name__)
+
+SERVE_HOST = "127.0.0.1"  # serve to this machine only: a recording can show where a robot is
+GRPC_PORT = 9876
+WEB_PORT = 9090
+BATCH_SCANS = 100  # scans buffered per send_columns call ...
+BATCH_SECONDS = 0.5  # ... or wall-clock seconds, whichever first: a live view lags at most this
+PATH_PIECE = 200  # poses per logged piece of a path
+CHI2_95_2DOF = 5.991464547107979  # χ²(2) quantile of the 95 % ellipse
+MAX_ELLIPSE_RADIUS = 20.0  # m; an unobserved direction would otherwise zoom the view out to nothing
+UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulation's
+TRUTH_TOLERANCE = 0.5  # s; a truth sample this close stands in for one at the estimate's time
+MAX_PENDING_ERRORS = 10 * BATCH_SCANS  # estimates kept waiting for truth that may never come
+
+ARROW_LENGTH = 0.5  # m
+POINT_RADIUS = 0.03  # m
+PAINTED = (235, 235, 235, 255)
+OBSERVED_UNMATCHED = (170, 170, 170, 255)
+UNMATCHED = (100, 100, 100, 255)
+STATUS_COLOURS = {
+    "accepted": (60, 200, 90, 255),
+    "rejected": (230, 60, 50, 255),
+    "ambiguous": (250, 160, 30, 255),
+    "no-fix": (150, 150, 150, 255),
+    "dropped": (140, 40, 40, 255),
+    "invalid": (140, 40, 40, 255),
+}
+STATE_LEVELS = {"tracking": "INFO", "collecting": "WARN", "relocalizing": "WARN", "lost": "ERROR"}
+ODOMETRY_COLOUR = (200, 120, 255, 255)
+TRUTH_COLOUR = (80, 200, 255, 255)
+ESTIMATE_COLOUR = (60, 200, 90, 255)
+
+METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
+           "sigma/theta", "matches", "error/position", "error/heading")
+_UNIT_CIRCLE = np.vstack((np.cos(np.linspace(0.0, 2.0 * np.pi, 37)),
+                          np.sin(np.linspace(0.0, 2.0 * np.pi, 37))))
+
+
+# ------------------------------------------------------------------------------- colours
+def line_palette(n: int) -> NDArray[np.uint8]:
+    """``n`` RGBA colours, one per map line id; line k's colour does not depend on ``n``.
+
+    Hues step by the golden ratio, so neighbouring ids get far-apart hues.
+    """
+    h = (np.arange(n) * 0.6180339887498949) % 1.0
+    s, v = 0.75, 0.95
+    i = np.floor(h * 6.0).astype(int) % 6
+    f = h * 6.0 - np.floor(h * 6.0)
+    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
+    vv = np.full(n, v)
+    pp = np.full(n, p)
+    r = np.choose(i, [vv, q, pp, pp, t, vv])
+    g = np.choose(i, [t, vv, vv, q, pp, pp])
+    b = np.choose(i, [pp, pp, t, vv, vv, q])
+    rgba = np.column_stack((r, g, b, np.ones(n))) * 255.0
+    return np.round(rgba).astype(np.uint8)
+
+
+class _LineColours:
+    """Colour table indexed by map line id; row −1 is 'unmatched', row −2 'on an unmatched line'.
+
+    Built once from the map (painted lines white); grows by the palette for ids it has not seen
+    (a logger used without ``log_map``).
+    """
+
+    def __init__(self) -> None:
+        self.painted = np.zeros(0, dtype=bool)
+        self.names = np.zeros(0, dtype=object)
+        self.table = self._build(0)
+
+    def set_map(self, painted: NDArray[np.bool_], names: list[str]) -> None:
+        self.painted = painted
+        self.names = np.asarray(names, dtype=object)
+        self.table = self._build(len(painted))
+
+    def _build(self, n: int) -> NDArray[np.uint8]:
+        rows = line_palette(n)
+        painted = np.zeros(n, dtype=bool)
+        painted[: len(self.painted)] = self.painted[:n]
+        rows[painted] = PAINTED
+        return np.vstack((rows, [OBSERVED_UNMATCHED, UNMATCHED])).astype(np.uint8)
+
+    @property
+    def n_lines(self) -> int:
+        return len(self.table) - 2
+
+    def ensure(self, ids: NDArray[np.intp]) -> None:
+        if len(ids) and int(ids.max()) >= self.n_lines:
+            self.table = self._build(int(ids.max()) + 1)
+
+    def label(self, ids: NDArray[np.intp]) -> list[str]:
+        known = len(self.names)
+        return [str(self.names[i]) if i < known else f"line {i}" for i in ids.tolist()]
+
+
+# ------------------------------------------------------------------------------- geometry
+def covariance_ellipse(xy: ArrayLike, cov_xy: NDArray[np.float64],
+                       chi2: float = CHI2_95_2DOF) -> NDArray[np.float64]:
+    """Closed polyline (37×2) of the ellipse {p : (p−xy)ᵀ C⁻¹ (p−xy) = χ²}, semi-axes clamped."""
+    w, v = np.linalg.eigh(0.5 * (cov_xy + cov_xy.T))
+    radii = np.minimum(np.sqrt(np.maximum(w, 0.0) * chi2), MAX_ELLIPSE_RADIUS)
+    return ((v * radii) @ _UNIT_CIRCLE).T + np.asarray(xy, dtype=float)[:2]
+
+
+def hough_pixels(grid: Any, theta: ArrayLike, rho: ArrayLike,
+                 wrap: bool = True) -> NDArray[np.float64]:
+    """(θ, ρ) to accumulator pixel coordinates (u: ρ column, v: θ row).
+
+    ``wrap`` puts θ in its own cell's row (θ just below 2π is the top row, cell 0); without it
+    θ is used as given (an end of a segment may then lie just outside the image).
+    """
+    theta = _own_row(grid, theta) if wrap else np.asarray(theta, dtype=float)
+    return np.column_stack(((np.asarray(rho, dtype=float) - grid.rho_min) / grid.rho_step,
+                            theta / grid.theta_step + 0.5))
+
+
+def _own_row(grid: Any, theta: ArrayLike) -> NDArray[np.float64]:
+    """θ in [−δθ/2, 2π − δθ/2): θ cell i is centred on iδθ, so cell 0 straddles θ = 0."""
+    half = 0.5 * grid.theta_step
+    return (np.asarray(theta, dtype=float) + half) % (2.0 * np.pi) - half
+
+
+class _Path:
+    """A growing polyline logged in pieces of at most ``PATH_PIECE`` poses (see the module doc)."""
+
+    def __init__(self, entity: str) -> None:
+        self.entity = entity
+        self.piece = 0
+        self.buffer = np.empty((PATH_PIECE + 1, 2))
+        self.count = 0
+
+    def append(self, xy: ArrayLike) -> tuple[str, NDArray[np.float64]]:
+        """Add a point; return the entity of the current piece and its points to log."""
+        if self.count == len(self.buffer):
+            self.buffer[0] = self.buffer[-1]  # the new piece starts where the last one ended
+            self.count = 1
+            self.piece += 1
+        self.buffer[self.count] = xy[:2]
+        self.count += 1
+        return f"{self.entity}/{self.piece}", self.buffer[: self.count].copy()
+
+
+# ------------------------------------------------------------------------------- blueprint
+def default_blueprint() -> rrb.Blueprint:
+    """World view (map, scan, robot, paths, hypotheses) beside the Hough view, the time series
+    and the text log."""
+    world = rrb.Spatial2DView(name="World", origin="/", contents=["+ world/**", "+ global/**"])
+    hough = rrb.Spatial2DView(name="Hough (rows θ, columns ρ)", origin="hough")
+    errors = rrb.TimeSeriesView(name="Errors (m, °)", origin="metrics/error")
+    nis = rrb.TimeSeriesView(name="NIS", origin="metrics/nis")
+    sigmas = rrb.TimeSeriesView(name="σ (m, °)", origin="metrics/sigma")
+    innovation = rrb.TimeSeriesView(name="Innovation (m, °)", origin="metrics/innovation")
+    matches = rrb.TimeSeriesView(name="Matches", origin="metrics/matches")
+    text = rrb.TextLogView(name="Log", origin="log")
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(world, text, row_shares=[3, 1]),
+            rrb.Vertical(
+                hough,
+                rrb.Horizontal(errors, nis),
+                rrb.Horizontal(sigmas, rrb.Tabs(innovation, matches)),
+                row_shares=[2, 1, 1],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="time"),
+    )
+
+
+def web_viewer_command(grpc_uri: str, web_port: int, host: str = SERVE_HOST) -> list[str]:
+    """The Rerun CLI serving only the web viewer, on ``host``, pointed at our gRPC server.
+
+    ``rerun.serve_web_viewer`` has no bind address (it listens on 0.0.0.0); the CLI's ``--bind``
+    applies to its web server.
+    """
+    return [_rerun_executable(), "--serve-web", "--bind", host,
+            "--web-viewer-port", str(web_port), grpc_uri]
+
+
+def _rerun_executable() -> str:
+    try:
+        import rerun_cli  # the wheel's own binary, matching the SDK's version
+
+        binary = Path(rerun_cli.__file__).parent / "rerun"
+        if binary.exists():
+            return str(binary)
+    except ImportError:
+        pass
+    return shutil.which("rerun") or "rerun"
+
+
+# ------------------------------------------------------------------------------- batching
+_STRIPS_TYPE = rr.components.LineStrip2DBatch([[[0.0, 0.0], [1.0, 0.0]]]).as_arrow_array().type
+
+
+def strips_array(strips: list[NDArray[np.float64]]) -> pa.Array:
+    """Ragged line strips as one Arrow list array (rerun converts a list of strips one by one)."""
+    lengths = np.fromiter((len(p) for p in strips), dtype=np.int32, count=len(strips))
+    offsets = np.concatenate(([0], np.cumsum(lengths, dtype=np.int32)))
+    flat = (np.concatenate(strips).astype(np.float32).reshape(-1) if len(strips)
+            else np.empty(0, np.float32))
+    points = pa.FixedSizeListArray.from_arrays(pa.array(flat), type=_STRIPS_TYPE.value_type)
+    return pa.ListArray.from_arrays(pa.array(offsets), points, type=_STRIPS_TYPE)
+
+
+class _Batch:
+    """The rows of one entity, sent with one ``send_columns`` call.
+
+    One ``log`` call costs ~100 µs whatever its size; a row in a batch costs a few µs. A row is
+    one time (``t``, ``scan``) with ``length`` instances; every field holds that many instances
+    (``strips``: a list of polylines; other lists: strings; arrays: stacked along axis 0).
+    """
+
+    def __init__(self, entity: str, archetype: Any) -> None:
+        self.entity = entity
+        self.archetype = archetype
+        self.t: list[float] = []
+        self.scan: list[int] = []
+        self.lengths: list[int] = []
+        self.fields: dict[str, list] = {}
+
+    def add(self, t: float, scan: int, length: int, **fields: Any) -> None:
+        self.t.append(t)
+        self.scan.append(scan)
+        self.lengths.append(length)
+        for name, value in fields.items():
+            self.fields.setdefault(name, []).append(value)
+
+    def send(self, stream: rr.RecordingStream, time_column: Any) -> None:
+        if not self.t:
+            return
+        data = {name: _join(name, rows) for name, rows in self.fields.items()}
+        stream.send_columns(
+            self.entity, indexes=[time_column(np.asarray(self.t)),
+                                  rr.TimeColumn("scan", sequence=np.asarray(self.scan))],
+            columns=self.archetype.columns(**data).partition(self.lengths))
+        self.t, self.scan, self.lengths, self.fields = [], [], [], {}
+
+
+def _join(name: str, rows: list) -> Any:
+    if name == "strips":
+        return strips_array([strip for row in rows for strip in row])
+    if isinstance(rows[0], list):
+        return pa.array([item for row in rows for item in row], type=pa.utf8())
+    return np.concatenate(rows)
+
+
+def _styles() -> dict[str, Any]:
+    """What does not change from row to row, logged once per entity as static data."""
+    return {
+        "points": rr.Points2D.from_fields(radii=POINT_RADIUS, draw_order=3.0),
+        "world/robot/estimate": rr.Arrows2D.from_fields(radii=0.04, draw_order=5.0,
+                                                        show_labels=False),
+        "world/robot/covariance": rr.LineStrips2D.from_fields(radii=0.015, draw_order=4.0),
+        "world/robot/truth": rr.Arrows2D.from_fields(radii=0.03, draw_order=4.5,
+                                                     colors=TRUTH_COLOUR),
+        "hough/peaks": rr.Points2D.from_fields(radii=1.2, draw_order=2.0),
+        "hough/references": rr.Points2D.from_fields(radii=0.8, draw_order=3.0,
+                                                    show_labels=False),
+        "hough/matches": rr.LineStrips2D.from_fields(radii=0.3, draw_order=1.0),
+    }
+
+
+_PATH_COLOURS = {"estimate": ESTIMATE_COLOUR, "odometry": ODOMETRY_COLOUR, "truth": TRUTH_COLOUR}
+_DEGREES = np.array([1.0, 1.0, 180.0 / math.pi])
+
+
+# ------------------------------------------------------------------------------- the logger
+class RerunLogger:
+    """Records every stage to its own :class:`rerun.RecordingStream` (never the global one).
+
+    ``path``: write an ``.rrd`` file there. ``serve``: host a gRPC server on ``SERVE_HOST`` only
+    (port ``grpc_port``; :attr:`grpc_url`) and, unless ``web_port`` is None, a web viewer at
+    :attr:`web_url` (a child process, stopped by :meth:`close`). With neither,
+    the data goes to memory (:attr:`memory`, for notebooks). ``accumulator_every``: log the Hough
+    image every N scans (0: never) — it is the costly part. The default blueprint travels with
+    the recording.
+
+    Per-scan data is buffered and sent in columns every ``BATCH_SCANS`` scans or
+    ``BATCH_SECONDS`` of wall time, and by :meth:`flush` / :meth:`close`; the Hough image, the
+    state log and the hypotheses are logged at once.
+    """
+
+    def __init__(self, path: str | Path | None = None, *, serve: bool = False,
+                 app_id: str = "houghloc", recording_name: str | None = None,
+                 accumulator_every: int = 1, grpc_port: int = GRPC_PORT,
+                 web_port: int | None = WEB_PORT) -> None:
+        self.stream = rr.RecordingStream(app_id, recording_id=uuid.uuid4())
+        self.accumulator_every = int(accumulator_every)
+        self.memory: Any = None
+        self.grpc_url: str | None = None  # for the native viewer: ``rerun <grpc_url>``
+        self.web_url: str | None = None  # the web viewer, connected to ``grpc_url``
+        self._web_viewer: subprocess.Popen | None = None
+        sinks: list[Any] = []
+        if path is not None:
+            Path(path).parent.mkdir(parents=True, exist_ok=True)
+            sinks.append(rr.FileSink(str(path)))
+        if serve:
+            server = rr.GrpcServerSink(bind_ip=SERVE_HOST, port=grpc_port)
+            sinks.append(server)
+            self.grpc_url = server.uri
+        if sinks:
+            self.stream.set_sinks(*sinks, default_blueprint=default_blueprint())
+        else:
+            self.memory = self.stream.memory_recording()
+            self.stream.send_blueprint(default_blueprint())
+        if recording_name:
+            self.stream.send_recording_name(recording_name)
+        if serve and web_port is not None:
+            self._start_web_viewer(web_port)
+        self._closed = False
+        self._time_kind: str | None = None
+        self._styles = _styles()
+        self._batches: dict[str, _Batch] = {}
+        self._styled: set[str] = set()
+        self._batched_scans = 0
+        self._last_send = time.monotonic()
+        self._scans_logged = 0
+        self._colours = _LineColours()
+        self._primary_sensor: str | None = None
+        self._paths = {name: _Path(f"world/path/{name}") for name in _PATH_COLOURS}
+        self._odometry: NDArray[np.float64] | None = None
+        self._odometry_anchor: tuple[NDArray, NDArray] | None = None  # (est₀, odom₀)
+        self._truth_t: list[float] = []
+        self._truth: list[tuple[float, float, float]] = []
+        self._truth_unlogged = False
+        # (t, scan, x, y, θ) of estimates awaiting truth; if none ever comes, the newest are kept
+        self._pending: deque[tuple[float, int, float, float, float]] = deque(
+            maxlen=MAX_PENDING_ERRORS)
+        for name in METRICS:
+            self.stream.log(f"metrics/{name}", rr.SeriesLines(names=name.split("/")[-1]),
+                            static=True)
+
+    # ---------------------------------------------------------------- NullLogger interface
+    def log_map(self, segment_map: Any) -> None:
+        """The map, once, as static data; fixes the colour of every map line."""
+        line_of = np.asarray(segment_map.line_of_segment)
+        is_wall = np.asarray(segment_map.kinds) == "wall"
+        n_lines = int(line_of.max()) + 1 if len(line_of) else 0
+        painted = np.ones(n_lines, dtype=bool)
+        painted[line_of[is_wall]] = False  # a line with any wall on it is a wall
+        names: list[list[str]] = [[] for _ in range(n_lines)]
+        for sid, line in zip(segment_map.ids, line_of.tolist(), strict=True):
+            names[line].append(str(sid))
+        self._colours.set_map(painted, ["+".join(n) for n in names])
+        strips = np.stack((segment_map.starts, segment_map.ends), axis=1)
+        ids = np.asarray(segment_map.ids, dtype=object)
+        for entity, keep, radius in (("world/map/walls", is_wall, 0.04),
+                                     ("world/map/lines", ~is_wall, 0.02)):
+            self.stream.log(entity, rr.LineStrips2D(
+                strips[keep], radii=radius, colors=self._colours.table[line_of[keep]],
+                labels=list(ids[keep]), show_labels=False, draw_order=1.0), static=True)
+
+    def log_odometry(self, t: float, odom_pose: Any) -> None:
+        """Remember the latest odometry pose; the odometry path is drawn at each scan."""
+        self._odometry = np.asarray(odom_pose, dtype=float).reshape(3)
+
+    def log_scan(self, t: float, index: int, sensor: str, points: Any, correction: Any,
+                 estimate: Any) -> None:
+        """One scan: its points in the world, the robot, the paths, the Hough stage, metrics."""
+        t, index = float(t), int(index)
+        pose = np.asarray(estimate.pose, dtype=float)
+        cov = np.asarray(estimate.cov, dtype=float)
+        primary = self._is_primary(sensor)
+        self._scan_points(t, index, "world/scan/points" if primary
+                          else f"world/scan/{sensor}/points", points, correction, pose)
+        self._robot(t, index, pose, cov, estimate.status)
+        if primary:
+            self._hough(t, index, correction)
+        if estimate.status != "accepted":
+            reason = getattr(correction, "reason", "")
+            self._batch("log/scan", rr.TextLog).add(
+                t, index, 1, text=[f"scan {index} ({sensor}): {estimate.status}"
+                                   + (f": {reason}" if reason else "")],
+                level=["DEBUG" if estimate.status == "no-fix" else "WARN"])
+        self._metrics(t, index, pose, cov, correction, getattr(estimate, "outcome", None))
+        self._scans_logged += 1
+        self._batched_scans += 1
+        if (self._batched_scans >= BATCH_SCANS
+                or time.monotonic() - self._last_send >= BATCH_SECONDS):
+            self._send_batches()
+
+    def log_truth(self, t: float, pose: Any) -> None:
+        """Ground truth: kept for the error series; drawn (robot and path) at the next scan."""
+        x, y, theta = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
+        if self._truth_t and t < self._truth_t[-1]:
+            return  # interpolation needs increasing times; a late truth sample adds nothing
+        self._truth_t.append(float(t))
+        self._truth.append((x, y, theta))
+        self._truth_unlogged = True
+
+    def log_state(self, t: float, state: str, reason: str) -> None:
+        """A transition of the ambiguity manager, as a text log whose level follows the state."""
+        self._set_time(t)
+        self.stream.log("log/state", rr.TextLog(f"{state}: {reason}" if reason else state,
+                                                level=STATE_LEVELS.get(state, "INFO")))
+
+    def log_hypotheses(self, t: float, poses: Any, scores: Any) -> None:
+        """Global localization's candidate poses (N×3) with their scores as labels."""
+        self._set_time(t)
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        scores = np.asarray(scores, dtype=float).reshape(-1)
+        if len(poses) == 0:
+            self.stream.log("global/hypotheses", rr.Clear(recursive=False))
+            return
+        # brighter for better scores: the best is full yellow, none darker than a fifth
+        best = scores.max() if len(scores) == len(poses) and scores.max() > 0 else 0.0
+        brightness = np.clip(scores / best, 0.2, 1.0) if best > 0 else np.ones(len(poses))
+        labels = [f"{s:.3g}" for s in scores.tolist()] if len(scores) == len(poses) else None
+        self.stream.log("global/hypotheses", rr.Arrows2D(
+            origins=poses[:, :2], vectors=ARROW_LENGTH * np.column_stack(
+                (np.cos(poses[:, 2]), np.sin(poses[:, 2]))), labels=labels, radii=0.03,
+            colors=np.round(np.outer(brightness, (255, 200, 0))).astype(np.uint8)))
+
+    def flush(self) -> None:
+        """Send everything buffered and wait until the sinks have it."""
+        self._send_batches()
+        self.stream.flush()
+
+    def close(self) -> None:
+        """Flush, settle the error series with the last truth, finish the file, stop serving."""
+        if self._closed:
+            return
+        self._closed = True
+        self._send_batches(final=True)
+        self.stream.flush()
+        if self.memory is None:  # disconnecting a memory sink would drop what it holds
+            self.stream.disconnect()  # writes the .rrd footer, shuts the gRPC server down
+        if self._web_viewer is not None:
+            self._web_viewer.terminate()
+            try:
+                self._web_viewer.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self._web_viewer.kill()
+            self._web_viewer = None
+
+    def __enter__(self) -> RerunLogger:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---------------------------------------------------------------- time and batches
+    def _set_time(self, t: float, scan: int | None = None) -> None:
+        """Time of an immediate log call; events between scans belong to no scan."""
+        self.stream.reset_time()
+        if scan is not None:
+            self.stream.set_time("scan", sequence=int(scan))
+        self.stream.set_time("time", **{self._clock(t): float(t)})
+
+    def _clock(self, t: float) -> str:
+        """``duration`` for a simulated clock, ``timestamp`` for Unix time; fixed at first use."""
+        if self._time_kind is None:
+            self._time_kind = "timestamp" if t > UNIX_TIME_THRESHOLD else "duration"
+        return self._time_kind
+
+    def _time_column(self, t: NDArray[np.float64]) -> rr.TimeColumn:
+        return rr.TimeColumn("time", **{self._clock(float(t[0])): t})
+
+    def _batch(self, entity: str, archetype: Any, style: Any = None) -> _Batch:
+        batch = self._batches.get(entity)
+        if batch is None:
+            batch = self._batches[entity] = _Batch(entity, archetype)
+            self._style_once(entity, style if style is not None else self._styles.get(entity))
+        return batch
+
+    def _style_once(self, entity: str, style: Any) -> None:
+        if style is not None and entity not in self._styled:
+            self._styled.add(entity)
+            self.stream.log(entity, style, static=True)
+
+    def _send_batches(self, final: bool = False) -> None:
+        self._errors(final)
+        for batch in self._batches.values():
+            batch.send(self.stream, self._time_column)
+        self._batched_scans = 0
+        self._last_send = time.monotonic()
+
+    # ---------------------------------------------------------------- world
+    def _is_primary(self, sensor: str) -> bool:
+        if self._primary_sensor is None:
+            self._primary_sensor = sensor
+        return sensor == self._primary_sensor
+
+    def _scan_points(self, t: float, index: int, entity: str, points: Any, correction: Any,
+                     pose: NDArray[np.float64]) -> None:
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        finite = np.isfinite(pts).all(axis=1)
+        if not finite.all():
+            pts = pts[finite]  # the Hough method dropped them too: members index what is left
+        rows = self._point_rows(len(pts), correction)  # may grow the colour table
+        colours = self._colours.table[rows]
+        self._batch(entity, rr.Points2D, self._styles["points"]).add(
+            t, index, len(pts), positions=transform_points(pose, pts), colors=colours)
+
+    def _point_rows(self, n: int, correction: Any) -> NDArray[np.intp]:
+        """Colour-table row of each point: its matched map line, else −2 on a line, else −1."""
+        rows = np.full(n, -1, dtype=np.intp)
+        lines = getattr(correction, "lines", None)
+        if lines is None or len(lines) == 0 or lines.members.shape[0] != n:
+            return rows
+        rows[lines.members.any(axis=1)] = -2
+        matches = correction.matches
+        map_lines = np.asarray(correction.matched_map_lines, dtype=np.intp)
+        if matches is None or len(matches) == 0 or len(map_lines) != len(matches):
+            return rows
+        self._colours.ensure(map_lines)
+        mine = lines.members[:, matches.line]
+        owned = mine.any(axis=1)
+        rows[owned] = map_lines[mine.argmax(axis=1)[owned]]
+        return rows
+
+    def _robot(self, t: float, index: int, pose: NDArray[np.float64], cov: NDArray[np.float64],
+               status: str) -> None:
+        colour = np.array([STATUS_COLOURS.get(status, UNMATCHED)], dtype=np.uint8)
+        self._batch("world/robot/estimate", rr.Arrows2D).add(
+            t, index, 1, origins=pose[None, :2], vectors=_heading(pose), colors=colour,
+            labels=[status])
+        self._batch("world/robot/covariance", rr.LineStrips2D).add(
+            t, index, 1, strips=[covariance_ellipse(pose, cov[:2, :2])], colors=colour)
+        self._extend_path(t, index, "estimate", pose)
+        if self._odometry is not None:
+            if self._odometry_anchor is None:
+                self._odometry_anchor = (pose.copy(), self._odometry.copy())
+            first_estimate, first_odometry = self._odometry_anchor
+            self._extend_path(t, index, "odometry",
+                              compose(first_estimate, relative(first_odometry, self._odometry)))
+        if self._truth_unlogged:
+            self._truth_unlogged = False
+            truth = np.asarray(self._truth[-1])
+            self._batch("world/robot/truth", rr.Arrows2D).add(
+                t, index, 1, origins=truth[None, :2], vectors=_heading(truth))
+            self._extend_path(t, index, "truth", truth)
+
+    def _extend_path(self, t: float, index: int, name: str, pose: NDArray[np.float64]) -> None:
+        entity, strip = self._paths[name].append(pose)
+        batch = self._batches.get(entity)
+        if batch is None:  # a new piece: its style once
+            batch = self._batch(entity, rr.LineStrips2D, rr.LineStrips2D.from_fields(
+                colors=_PATH_COLOURS[name], radii=0.02, draw_order=2.0))
+        batch.add(t, index, 1, strips=[strip])
+
+    # ---------------------------------------------------------------- Hough
+    def _hough(self, t: float, index: int, correction: Any) -> None:
+        grid = getattr(correction, "grid", None)
+        every = self.accumulator_every
+        if grid is not None and every > 0 and self._scans_logged % every == 0:
+            self._accumulator(t, index, correction.accumulator)
+        lines = getattr(correction, "lines", None)
+        refs = getattr(correction, "references", None)
+        matches = getattr(correction, "matches", None)
+        if grid is None or lines is None:
+            peaks = np.empty((0, 2))
+        else:
+            peaks = hough_pixels(grid, lines.theta, lines.rho)
+        peak_rows = np.full(len(peaks), -2, dtype=np.intp)
+        if refs is None or grid is None:
+            ref_ids, ref_pixels = np.empty(0, np.intp), np.empty((0, 2))
+        else:
+            ref_ids = np.asarray(refs.line, dtype=np.intp)
+            ref_pixels = hough_pixels(grid, refs.theta, refs.rho)
+            self._colours.ensure(ref_ids)
+        ends = np.empty((0, 2, 2))
+        if len(peaks) and len(ref_ids) and matches is not None and len(matches):
+            peak_rows[matches.line] = ref_ids[matches.ref]
+            # the reference's θ taken nearest the peak's, so a pair across θ = 0 ≡ 2π is short
+            theta_line = _own_row(grid, lines.theta[matches.line])
+            theta_ref = theta_line + wrap_angle(refs.theta[matches.ref] - theta_line)
+            ends = np.stack((peaks[matches.line],
+                             hough_pixels(grid, theta_ref, refs.rho[matches.ref], wrap=False)),
+                            axis=1)
+        table = self._colours.table
+        self._batch("hough/peaks", rr.Points2D).add(
+            t, index, len(peaks), positions=peaks, colors=table[peak_rows])
+        self._batch("hough/references", rr.Points2D).add(
+            t, index, len(ref_ids), positions=ref_pixels, colors=table[ref_ids],
+            labels=self._colours.label(ref_ids))
+        self._batch("hough/matches", rr.LineStrips2D).add(
+            t, index, len(ends), strips=list(ends), colors=table[peak_rows[matches.line]]
+            if len(ends) else np.empty((0, 4), np.uint8))
+
+    def _accumulator(self, t: float, index: int, votes: NDArray | None) -> None:
+        """The vote image, logged at once (batching images saves nothing: the cost is per pixel)."""
+        if votes is None:
+            return
+        self._style_once("hough/accumulator", rr.DepthImage.from_fields(
+            meter=1.0, colormap="viridis", draw_order=0.0))
+        self._set_time(t, index)
+        # uint16 halves what is copied and sent; a cell gets at most one vote per point
+        image = votes.astype(np.uint16 if votes.max() < 65536 else np.uint32)
+        self.stream.log("hough/accumulator", rr.DepthImage(image))
+
+    # ---------------------------------------------------------------- time series
+    def _metrics(self, t: float, index: int, pose: NDArray, cov: NDArray, correction: Any,
+                 outcome: Any) -> None:
+        if outcome is not None and outcome.dof > 0 and len(outcome.innovation):
+            innovation = np.asarray(outcome.innovation, dtype=float)
+            basis = getattr(correction, "observable", None)
+            if outcome.dof < 3 and basis is not None and basis.shape[1] == outcome.dof:
+                innovation = basis @ innovation  # observed directions back to (x, y, θ)
+            if innovation.shape == (3,):
+                for name, value in zip(METRICS[:3], innovation * _DEGREES, strict=True):
+                    self._scalar(name, t, index, value)
+            self._scalar("nis", t, index, outcome.nis)
+        sigma = np.sqrt(np.maximum(np.diag(cov), 0.0)) * _DEGREES
+        for name, value in zip(METRICS[4:7], sigma, strict=True):
+            self._scalar(name, t, index, value)
+        matches = getattr(correction, "matches", None)
+        self._scalar("matches", t, index, len(matches) if matches is not None else 0)
+        self._pending.append((t, index, float(pose[0]), float(pose[1]), float(pose[2])))
+
+    def _scalar(self, name: str, t: float, index: int, value: float) -> None:
+        self._batch(f"metrics/{name}", rr.Scalars).add(
+            t, index, 1, scalars=np.array([value], dtype=float))
+
+    def _errors(self, final: bool) -> None:
+        """Errors of the pending estimates against truth interpolated at their times.
+
+        An estimate waits until truth at or after its time has arrived (truth and scans of one
+        instant come in either order); at the end, truth within ``TRUTH_TOLERANCE`` will do.
+        """
+        if not self._truth_t or not self._pending:
+            if final:
+                self._pending.clear()
+            return
+        truth_t = np.asarray(self._truth_t)
+        truth = np.asarray(self._truth)
+        pending = np.asarray(self._pending)
+        t = pending[:, 0]
+        inside = (t >= truth_t[0]) & (t <= truth_t[-1])
+        ready = inside | (t < truth_t[0]) | final  # before the first truth: none will come
+        nearest = np.clip(t, truth_t[0], truth_t[-1])
+        use = ready & (inside | (np.abs(t - nearest) <= TRUTH_TOLERANCE))
+        if use.any():
+            at = nearest[use]
+            reference = np.column_stack((np.interp(at, truth_t, truth[:, 0]),
+                                         np.interp(at, truth_t, truth[:, 1]),
+                                         np.interp(at, truth_t, np.unwrap(truth[:, 2]))))
+            est = pending[use]
+            position = np.hypot(est[:, 2] - reference[:, 0], est[:, 3] - reference[:, 1])
+            heading = np.degrees(np.abs(wrap_angle(est[:, 4] - reference[:, 2])))
+            for name, values in (("error/position", position), ("error/heading", heading)):
+                batch = self._batch(f"metrics/{name}", rr.Scalars)
+                for (ti, scan), value in zip(est[:, :2].tolist(), values.tolist(), strict=True):
+                    batch.add(ti, int(scan), 1, scalars=np.array([value]))
+        self._pending = deque((row for row, done in zip(self._pending, ready, strict=True)
+                               if not done), maxlen=MAX_PENDING_ERRORS)
+        # keep only the truth the pending estimates can still need
+        oldest = min(row[0] for row in self._pending) if self._pending else truth_t[-1]
+        first = max(int(np.searchsorted(truth_t, oldest, side="right")) - 1, 0)
+        del self._truth_t[:first], self._truth[:first]
+
+    # ---------------------------------------------------------------- serving
+    def _start_web_viewer(self, web_port: int) -> None:
+        grpc_url = self.grpc_url or ""
+        try:
+            self._web_viewer = subprocess.Popen(web_viewer_command(grpc_url, web_port),
+                                                stdout=subprocess.DEVNULL,
+                                                stderr=subprocess.DEVNULL)
+        except OSError as exc:
+            _log.warning("cannot start the Rerun web viewer (%s); open %s with `rerun`",
+                         exc, grpc_url)
+            return
+        self.web_url = f"http://{SERVE_HOST}:{web_port}/?url={quote(grpc_url, safe='')}"
+        _log.info("Rerun web viewer: %s", self.web_url)
+
+
+def _heading(pose: NDArray[np.float64]) -> NDArray[np.float64]:
+    return ARROW_LENGTH * np.array([[math.cos(pose[2]), math.sin(pose[2])]])

@@ -1,0 +1,323 @@
+"""End-to-end figures of the fused localizer on simulated scenarios, against ground truth.
+
+Accuracy (laser on the RoboCup field and in the office; the camera-line sensor), filter
+consistency (NEES over seeds), late camera measurements with and without the delayed-measurement
+handling, NIS gating of injected outliers, and memory that does not grow with the log's length.
+The default suite uses one-minute runs and a few seeds; the full-size versions (five-minute runs,
+20 seeds, a one-hour log) are marked ``slow``. Speed is measured by ``benchmarks/bench_fusion.py``,
+not asserted here: wall-clock times on a shared machine are not a test.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.typing import ArrayLike, NDArray
+
+from fusion import Localizer
+from fusion.config import LocalizerConfig
+from fusion.evaluation import ATE, ATEResult, LostFraction, Trajectory, chi2_band, nees
+from fusion.replay import ReplayResult, replay
+from fusion.sim import SimRun, scenario_preset, simulate, write_run
+from fusion.tracker import PoseTracker
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIGS = REPO / "configs"
+SHORT = 60.0  # seconds: the default suite's runs
+FULL = 300.0  # the issue's five-minute runs
+
+
+# ------------------------------------------------------------------------------------ helpers
+def config_for(scenario: str, **filter_overrides: object) -> LocalizerConfig:
+    """The scenario's shipped configuration, with filter settings overridden if asked."""
+    config = LocalizerConfig.from_yaml(CONFIGS / f"{scenario}.yaml")
+    if not filter_overrides:
+        return config
+    return config.model_copy(update={"filter": config.filter.model_copy(update=filter_overrides)})
+
+
+@dataclass
+class Localized:
+    """One simulated run localized from its known start pose, with its errors."""
+
+    run: SimRun
+    result: ReplayResult
+    localizer: Localizer
+    ate: ATEResult
+
+    @property
+    def position_rmse(self) -> float:
+        return self.ate.position["rmse"]
+
+    @property
+    def heading_rmse_deg(self) -> float:
+        return self.ate.heading_deg["rmse"]
+
+    @property
+    def lost(self) -> int:
+        return LostFraction().from_ate(self.ate).count
+
+    def nees_per_scan(self) -> NDArray[np.float64]:
+        """eᵀP⁻¹e of every output pose against the truth at its time."""
+        ref = self.run.truth[self.ate.association.ref_index]
+        errors = np.column_stack((self.result.poses[:, :2] - ref[:, :2], self.ate.heading_errors))
+        return nees(errors, self.result.covs).values
+
+
+def localize(run: SimRun, config: LocalizerConfig,
+             tracker: PoseTracker | None = None) -> Localized:
+    loc = Localizer(run.map, config, initial_pose=run.odom_truth[0])
+    if tracker is not None:
+        loc.tracker = tracker
+    result = replay(run.events(), loc, progress=False)
+    ate = ATE().compute(result.trajectory, Trajectory(run.truth_t, run.truth))
+    # Every output pose must be scored: an unmatched one would hide from the error figures.
+    assert ate.association.matched == len(result.t) > 0
+    return Localized(run, result, loc, ate)
+
+
+def simulated(scenario: str, seed: int, duration: float, **camera: object) -> SimRun:
+    cfg = scenario_preset(scenario, seed=seed, duration=duration)
+    if camera:
+        cfg = cfg.model_copy(update={"camera": cfg.camera.model_copy(update=camera)})
+    return simulate(cfg)
+
+
+def odometry_only_error(run: SimRun) -> ATEResult:
+    """Dead reckoning from the true start pose, against the truth at every odometry reading."""
+    return ATE().compute(Trajectory(run.odom_t, run.odom_in_map()),
+                         Trajectory(run.odom_t, run.odom_truth))
+
+
+# ------------------------------------------------------------------------------ (1) accuracy
+LASER_TARGETS = {  # scenario: (position RMSE m, heading RMSE deg) from the issue
+    "robocup-laser": (0.01, 0.2),
+    "office-laser": (0.02, 0.3),
+}
+
+
+def check_laser_accuracy(scenario: str, seed: int, duration: float,
+                         min_odometry_drift: float) -> None:
+    run = simulated(scenario, seed, duration)
+    fused = localize(run, config_for(scenario))
+    max_position, max_heading_deg = LASER_TARGETS[scenario]
+    assert fused.position_rmse <= max_position
+    assert fused.heading_rmse_deg <= max_heading_deg
+    assert fused.lost == 0
+    assert fused.localizer.stats.accepted >= 0.9 * len(run.scan_t)
+    # The odometry alone, over the same run, is far off: the fixes are doing the work.
+    assert odometry_only_error(run).position["max"] >= min_odometry_drift
+
+
+@pytest.mark.parametrize("scenario", list(LASER_TARGETS))
+def test_laser_accuracy_one_minute(scenario: str) -> None:
+    check_laser_accuracy(scenario, seed=0, duration=SHORT, min_odometry_drift=0.3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("scenario", list(LASER_TARGETS))
+def test_laser_accuracy_five_minutes(scenario: str, seed: int) -> None:
+    check_laser_accuracy(scenario, seed=seed, duration=FULL, min_odometry_drift=1.0)
+
+
+# ------------------------------------------------------------------------------- (2) camera
+CAMERA_TARGET = (0.03, 0.5)  # position RMSE m, heading RMSE deg
+
+
+def check_camera_accuracy(seed: int, duration: float) -> None:
+    run = simulated("robocup-camera", seed, duration)
+    fused = localize(run, config_for("robocup-camera"))
+    # Late frames must be applied at their capture time, not dropped.
+    assert fused.localizer.tracker.counts.dropped == 0
+    assert fused.localizer.tracker.counts.delayed >= 0.9 * fused.localizer.stats.accepted > 0
+    max_position, max_heading_deg = CAMERA_TARGET
+    assert fused.position_rmse <= max_position and fused.heading_rmse_deg <= max_heading_deg, (
+        f"camera ATE {fused.position_rmse * 100:.2f} cm / {fused.heading_rmse_deg:.3f}° "
+        f"(target ≤ {max_position * 100:.0f} cm / {max_heading_deg}°)")
+    assert fused.lost == 0
+
+
+def test_camera_accuracy_one_minute() -> None:
+    check_camera_accuracy(seed=0, duration=SHORT)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_camera_accuracy_five_minutes(seed: int) -> None:
+    check_camera_accuracy(seed=seed, duration=FULL)
+
+
+# -------------------------------------------------------------------------- (3) consistency
+def monte_carlo_nees(scenario: str, seeds: int, duration: float) -> NDArray[np.float64]:
+    """Average NEES over the seeds at each scan time (Bar-Shalom's Monte-Carlo ANEES): the runs
+    are independent, so each average is χ²(3·seeds)/seeds if the filter is consistent."""
+    per_seed = [localize(simulated(scenario, seed, duration), config_for(scenario))
+                .nees_per_scan() for seed in range(seeds)]
+    return np.mean(per_seed, axis=0)
+
+
+def check_consistency(scenario: str, seeds: int, duration: float) -> None:
+    anees = monte_carlo_nees(scenario, seeds, duration)
+    low, high = chi2_band(seeds, dof=3)
+    assert low <= anees.mean() <= high, f"average NEES {anees.mean():.2f} outside [{low:.2f}, " \
+                                        f"{high:.2f}]"
+    # Not just on average: at nearly every scan time (95 % expected for a consistent filter).
+    inside = np.mean((anees >= low) & (anees <= high))
+    assert inside >= 0.85, f"ANEES inside the band at only {inside:.0%} of the scan times"
+
+
+def test_nees_inside_the_chi2_band_over_five_seeds() -> None:
+    check_consistency("robocup-laser", seeds=5, duration=SHORT)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["robocup-laser", "office-laser"])
+def test_nees_inside_the_chi2_band_over_twenty_seeds(scenario: str) -> None:
+    check_consistency(scenario, seeds=20, duration=FULL)
+
+
+# ------------------------------------------------------------------------------ (4) latency
+CAMERA_LATENCY = 0.3  # s, "a few tenths of a second" of image processing
+
+
+def check_latency(seed: int, duration: float) -> None:
+    on_time = localize(simulated("robocup-camera", seed, duration, latency=0.0),
+                       config_for("robocup-camera"))
+    late_run = simulated("robocup-camera", seed, duration, latency=CAMERA_LATENCY)
+    late = localize(late_run, config_for("robocup-camera"))
+    late_applied_on_arrival = localize(late_run, config_for("robocup-camera",
+                                                            delayed_updates=False))
+
+    assert on_time.localizer.tracker.counts.delayed == 0
+    assert late.localizer.tracker.counts.delayed == late.localizer.stats.accepted > 0
+    # Applied at its capture time, a late frame is worth what it was worth on time.
+    assert late.position_rmse <= 1.10 * on_time.position_rmse
+    assert late.heading_rmse_deg <= 1.10 * on_time.heading_rmse_deg
+    # Applied as if just taken, it corrects towards where the robot was 0.3 s ago.
+    assert late_applied_on_arrival.localizer.tracker.counts.delayed == 0
+    assert late_applied_on_arrival.position_rmse >= 1.5 * on_time.position_rmse
+
+
+def test_late_camera_frames_cost_nothing_with_the_history_one_minute() -> None:
+    check_latency(seed=0, duration=SHORT)
+
+
+@pytest.mark.slow
+def test_late_camera_frames_cost_nothing_with_the_history_five_minutes() -> None:
+    check_latency(seed=1, duration=FULL)
+
+
+# ------------------------------------------------------------------------------- (5) gating
+class OutlierInjectingTracker(PoseTracker):
+    """A tracker that shifts a fraction of the pose fixes it is given by 1 m in a random
+    direction (a wrong correspondence the matcher did not notice), deterministically by seed,
+    and remembers the times of the shifted ones."""
+
+    def __init__(self, localizer_config: LocalizerConfig, initial_pose: ArrayLike,
+                 fraction: float, seed: int, shift: float = 1.0) -> None:
+        fc = localizer_config.filter
+        super().__init__(initial_pose, fc.initial_cov, fc.motion, fc.history_seconds,
+                         fc.gate_probability, fc.delayed_updates)
+        self.fraction, self.shift = fraction, shift
+        self.rng = np.random.default_rng(seed)
+        self.injected_times: list[float] = []
+
+    def apply(self, t: float, z: ArrayLike, r: ArrayLike, basis: ArrayLike | None = None):
+        if self.rng.random() < self.fraction:
+            direction = self.rng.uniform(-np.pi, np.pi)
+            z = np.asarray(z, dtype=float) + self.shift * np.array(
+                [np.cos(direction), np.sin(direction), 0.0])
+            self.injected_times.append(t)
+        return super().apply(t, z, r, basis)
+
+
+def rmse(values: NDArray[np.float64]) -> float:
+    return float(np.sqrt(np.mean(values**2)))
+
+
+def check_gating(scenario: str, seed: int, duration: float) -> None:
+    run = simulated(scenario, seed, duration)
+    config = config_for(scenario)
+    clean = localize(run, config)
+    tracker = OutlierInjectingTracker(config, run.odom_truth[0], fraction=0.05, seed=seed)
+    corrupted = localize(run, config, tracker)
+
+    injected = len(tracker.injected_times)
+    fixes = corrupted.localizer.stats.accepted + corrupted.localizer.stats.rejected
+    assert 0.03 * fixes <= injected <= 0.07 * fixes
+    rejected_beyond_clean = tracker.counts.rejected - clean.localizer.tracker.counts.rejected
+    # A 1 m jump is rejected unless it lies along a direction the fix does not observe.
+    assert 0.9 * injected <= rejected_beyond_clean <= injected
+    assert corrupted.localizer.stats.rejected == tracker.counts.rejected
+    assert corrupted.lost == 0
+    # The gate keeps the outliers out of the estimate: elsewhere it is the clean run's.
+    shifted = np.isin(corrupted.result.t, tracker.injected_times)
+    elsewhere = rmse(corrupted.ate.position_errors[~shifted])
+    assert elsewhere <= 1.02 * rmse(clean.ate.position_errors[~shifted])
+    # At a rejected scan the pose is the odometry prediction since the previous scan, so the
+    # heading pays a little there; it must stay within the scenario's target.
+    assert corrupted.heading_rmse_deg <= LASER_TARGETS[scenario][1]
+    # The issue's figure, over every scan.
+    assert corrupted.position_rmse <= 1.10 * clean.position_rmse, (
+        f"ATE {corrupted.position_rmse * 1e3:.3f} mm with outliers vs "
+        f"{clean.position_rmse * 1e3:.3f} mm clean; without the {injected} shifted scans "
+        f"{elsewhere * 1e3:.3f} mm, at them "
+        f"{rmse(corrupted.ate.position_errors[shifted]) * 1e3:.3f} mm")
+
+
+def test_gate_rejects_one_metre_outliers_one_minute() -> None:
+    check_gating("robocup-laser", seed=0, duration=SHORT)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", list(LASER_TARGETS))
+def test_gate_rejects_one_metre_outliers_five_minutes(scenario: str) -> None:
+    check_gating(scenario, seed=2, duration=FULL)
+
+
+# ------------------------------------------------------------------------------- (6) memory
+# Runs in a fresh interpreter so that its peak RSS is the replay's alone: the log file is
+# streamed through fusion.io.open_log into `replay`, as `houghloc run` does.
+PEAK_RSS_SCRIPT = textwrap.dedent("""
+    import resource, sys
+    from fusion import Localizer
+    from fusion.io import open_log
+    from fusion.replay import replay
+    from houghloc import SegmentMap
+
+    log_dir, config, out = sys.argv[1:4]
+    events, _ = open_log(log_dir)
+    localizer = Localizer.from_config(config, SegmentMap.from_yaml(log_dir + "/map.yaml"))
+    result = replay(events, localizer, trajectory_path=out, progress=False)
+    print(len(result.t), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+""")
+
+
+def peak_rss_kib(log_dir: Path, out: Path) -> tuple[int, int]:
+    """(scans replayed, peak RSS in KiB) of a replay in a fresh subprocess."""
+    done = subprocess.run(
+        [sys.executable, "-c", PEAK_RSS_SCRIPT, str(log_dir),
+         str(CONFIGS / "robocup-laser.yaml"), str(out)],
+        capture_output=True, text=True, cwd=REPO, check=True, timeout=3600)
+    scans, rss = done.stdout.split()
+    return int(scans), int(rss)
+
+
+@pytest.mark.slow
+def test_peak_memory_does_not_grow_with_the_log(tmp_path: Path) -> None:
+    peaks = {}
+    for minutes in (10, 60):
+        log_dir = tmp_path / f"log-{minutes}min"
+        write_run(simulate(scenario_preset("robocup-laser", seed=0, duration=60.0 * minutes)),
+                  log_dir)
+        scans, peaks[minutes] = peak_rss_kib(log_dir, tmp_path / f"trajectory-{minutes}.tum")
+        assert scans == 600 * minutes + 1
+    # Six times the log may cost a few MiB of buffers, not six times the memory of its data.
+    assert peaks[60] - peaks[10] <= 8 * 1024, f"peak RSS {peaks} KiB"

@@ -1,0 +1,232 @@
+"""Global set matching (DESIGN §3.6): poses found without a guess, symmetry reported, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from houghloc import SegmentMap, observe_lines
+from houghloc.geometry import relative, transform_points, wrap_angle
+from houghloc.global_match import (
+    GlobalMatchConfig,
+    GlobalResult,
+    angle_index,
+    global_match,
+    seen_directly,
+    wall_distance,
+)
+from houghloc.refine import Lines
+from tests.conftest import MAPS
+
+HOUGH = GlobalMatchConfig().hough  # extraction settings for accumulated views
+
+
+# ---------------------------------------------------------------------------- simulation
+def laser_scan(m: SegmentMap, pose: np.ndarray, rng: np.random.Generator, n_beams: int = 181,
+               fov: float = np.pi, sigma: float = 0.01, max_range: float = 10.0) -> np.ndarray:
+    """Robot-frame points of the first wall hit by each beam (all beams × walls at once)."""
+    rel = np.linspace(-fov / 2, fov / 2, n_beams)
+    d = np.column_stack((np.cos(rel + pose[2]), np.sin(rel + pose[2])))
+    walls = np.flatnonzero(m.is_wall)
+    w = m.starts[walls] - pose[:2]
+    e = m.ends[walls] - m.starts[walls]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]
+        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
+        u = (w[:, 0] * d[:, 1:] - w[:, 1] * d[:, :1]) / den
+    r = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf).min(axis=1)
+    keep = r < max_range
+    r = r[keep] + rng.normal(0.0, sigma, keep.sum())
+    return np.column_stack((r * np.cos(rel[keep]), r * np.sin(rel[keep])))
+
+
+def accumulated_views(m: SegmentMap, pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """360° of points: four 180° scans from poses a few cm and quarter turns apart, brought into
+    the frame of ``pose`` with their (exact) relative poses, as odometry would over a short turn."""
+    views = []
+    for k in range(4):
+        view = pose + np.array([*rng.normal(0.0, 0.05, 2), k * np.pi / 2 + rng.normal(0, 0.05)])
+        views.append(transform_points(relative(pose, view), laser_scan(m, view, rng)))
+    return np.concatenate(views)
+
+
+def free_pose(m: SegmentMap, rng: np.random.Generator) -> np.ndarray:
+    """A random pose in free space: ≥ 0.4 m from walls, inside the building (most beams return)
+    and not inside furniture (median range ≥ 1 m)."""
+    walls = wall_distance(m, ("wall",), 0.05)
+    lo, hi = m.starts.min(axis=0), m.starts.max(axis=0)
+    while True:
+        x, y = rng.uniform(lo, hi)
+        if walls.lookup(np.array(x), np.array(y)) < 0.4:
+            continue
+        pose = np.array([x, y, rng.uniform(-np.pi, np.pi)])
+        ranges = np.hypot(*laser_scan(m, pose, rng, 72, 2 * np.pi, 0.0, 30.0).T)
+        if len(ranges) >= 70 and np.median(ranges) >= 1.0:
+            return pose
+
+
+def run(m: SegmentMap, points: np.ndarray, config: GlobalMatchConfig | None = None
+        ) -> GlobalResult:
+    _, _, lines = observe_lines(points, HOUGH)
+    return global_match(lines, points, m, config or GlobalMatchConfig())
+
+
+def close(pose: np.ndarray, truth: np.ndarray, xy: float = 0.10, deg: float = 2.0) -> bool:
+    return bool(np.hypot(*(pose[:2] - truth[:2])) <= xy
+                and abs(wrap_angle(pose[2] - truth[2])) <= np.radians(deg))
+
+
+def empty_lines() -> Lines:
+    x = np.linspace(0.0, 3.0, 50)
+    lines = observe_lines(np.column_stack((x, np.ones_like(x))), HOUGH)[2]
+    return lines.subset(np.empty(0, dtype=np.intp))
+
+
+@pytest.fixture(scope="module")
+def office_large() -> SegmentMap:
+    return SegmentMap.from_yaml(MAPS / "office-large.yaml")
+
+
+# ---------------------------------------------------------------------------- success rate
+@pytest.mark.parametrize("map_name", ["office.yaml", "office-large.yaml"])
+def test_best_hypothesis_is_the_true_pose(map_name: str) -> None:
+    m = SegmentMap.from_yaml(MAPS / map_name)
+    rng = np.random.default_rng(2024)
+    trials, hits = 20, 0
+    for _ in range(trials):
+        truth = free_pose(m, rng)
+        result = run(m, accumulated_views(m, truth, rng))
+        hits += result.best is not None and close(result.best.pose, truth)
+    assert hits / trials >= 0.95, f"{hits}/{trials} within 10 cm / 2°"
+
+
+def test_hypothesis_carries_an_honest_covariance(office_large: SegmentMap) -> None:
+    rng = np.random.default_rng(5)
+    truth = np.array([21.66, 2.7, -0.58])
+    best = run(office_large, accumulated_views(office_large, truth, rng)).best
+    assert best is not None and close(best.pose, truth)
+    assert best.cov.shape == (3, 3) and np.all(np.linalg.eigvalsh(best.cov) > 0)
+    err = best.pose - truth
+    err[2] = wrap_angle(err[2])
+    # the error is a plausible draw from the covariance
+    assert err @ np.linalg.solve(best.cov, err) < 30.0  # χ²(3): measured NEES ≈ 2 on average
+    assert best.n_lines_explained >= 2 and len(best.matches) >= 2
+    assert best.matches.shape[1] == 2 and 0.0 < best.score <= 1.0
+
+
+def test_hypotheses_are_distinct_and_best_first(office_large: SegmentMap) -> None:
+    rng = np.random.default_rng(11)
+    result = run(office_large, accumulated_views(office_large, free_pose(office_large, rng), rng))
+    scores = [h.score for h in result.hypotheses]
+    assert scores == sorted(scores, reverse=True)
+    poses = np.array([h.pose for h in result.hypotheses])
+    for i in range(len(poses)):
+        for j in range(i):
+            apart = (np.hypot(*(poses[i, :2] - poses[j, :2])) > 0.3
+                     or abs(wrap_angle(poses[i, 2] - poses[j, 2])) > np.radians(5))
+            assert apart
+
+
+# ---------------------------------------------------------------------------- symmetry
+def test_symmetric_field_reports_both_mirror_poses(robocup: SegmentMap) -> None:
+    rng = np.random.default_rng(3)
+    for truth in (np.array([1.4, -1.15, -2.88]), np.array([-2.0, 0.8, 0.6])):
+        result = run(robocup, accumulated_views(robocup, truth, rng))
+        mirror = np.array([-truth[0], -truth[1], wrap_angle(truth[2] + np.pi)])
+        assert result.ambiguous, result.reason
+        found = [h for h in result.hypotheses if close(h.pose, truth)]
+        found_mirror = [h for h in result.hypotheses if close(h.pose, mirror)]
+        assert found and found_mirror
+        assert abs(found[0].score - found_mirror[0].score) <= GlobalMatchConfig().tie_margin
+        assert "keep collecting" in result.reason
+
+
+# ---------------------------------------------------------------------------- not enough
+def test_one_wall_gives_no_hypothesis_and_says_why(office: SegmentMap) -> None:
+    rng = np.random.default_rng(0)
+    x = np.linspace(-3.0, 3.0, 300)
+    points = np.column_stack((x, np.full_like(x, 2.0) + rng.normal(0, 0.01, x.size)))
+    result = run(office, points)
+    assert result.hypotheses == [] and not result.ambiguous
+    assert "non-parallel" in result.reason
+
+
+def test_corridor_of_parallel_walls_gives_no_hypothesis(office: SegmentMap) -> None:
+    x = np.linspace(-4.0, 4.0, 200)
+    points = np.concatenate((np.column_stack((x, np.full_like(x, 1.0))),
+                             np.column_stack((x, np.full_like(x, -1.0)))))
+    result = run(office, points)
+    assert result.hypotheses == [] and "non-parallel" in result.reason
+
+
+@pytest.mark.parametrize("points", [np.empty((0, 2)), [], np.full((5, 2), np.nan)])
+def test_no_points_is_an_empty_result(office: SegmentMap, points) -> None:
+    result = global_match(empty_lines(), points, office)
+    assert result.hypotheses == [] and result.reason == "no points"
+
+
+def test_no_lines_or_bad_points_is_an_empty_result(office: SegmentMap) -> None:
+    pts = np.random.default_rng(0).uniform(-5, 5, (100, 2))
+    assert global_match(empty_lines(), pts, office).reason == "no observed lines"
+    assert global_match(None, pts, office).reason == "no observed lines"
+    assert "N×2" in global_match(empty_lines(), np.zeros((4, 3)), office).reason
+    assert "kinds" in global_match(empty_lines(), pts, office, kinds=("line",)).reason
+    assert "N×2" in global_match(empty_lines(), "not points", office).reason
+
+
+def test_non_finite_points_are_dropped_with_their_line_rows(office_large: SegmentMap) -> None:
+    rng = np.random.default_rng(5)
+    truth = np.array([21.66, 2.7, -0.58])
+    points = accumulated_views(office_large, truth, rng)
+    _, _, lines = observe_lines(points, HOUGH)
+    points[::50] = np.nan  # e.g. no-return beams that slipped through
+    best = global_match(lines, points, office_large).best
+    assert best is not None and close(best.pose, truth)
+    assert "extracted from" in global_match(lines, points[:-1], office_large).reason
+
+
+def test_points_off_the_map_give_no_hypothesis(office: SegmentMap) -> None:
+    # a small square room (2 m) that fits nowhere in the office with its walls on real segments
+    rng = np.random.default_rng(1)
+    s = np.linspace(-1.0, 1.0, 80)
+    room = np.concatenate([np.column_stack((s, np.full_like(s, c))) for c in (-1.0, 1.0)]
+                          + [np.column_stack((np.full_like(s, c), s)) for c in (-1.0, 1.0)])
+    room += rng.normal(0, 0.01, room.shape)
+    cfg = GlobalMatchConfig(min_line_coverage=0.95, min_lines_explained=4)
+    result = run(office, room, cfg)
+    assert result.hypotheses == [] and result.reason
+
+
+# ---------------------------------------------------------------------------- parts
+def test_angle_index_is_sorted_and_cached(office_large: SegmentMap) -> None:
+    cfg = GlobalMatchConfig()
+    index = angle_index(office_large, ("wall",), cfg.min_pair_angle, cfg.angle_tol_max)
+    assert np.all(np.diff(index.delta) >= 0)
+    assert index is angle_index(office_large, ("wall",), cfg.min_pair_angle, cfg.angle_tol_max)
+    # N⁻¹ really inverts [[cos β_a, sin β_a], [cos β_b, sin β_b]]
+    n = np.stack((np.column_stack((np.cos(index.beta_a), np.sin(index.beta_a))),
+                  np.column_stack((np.cos(index.beta_b), np.sin(index.beta_b)))), axis=1)
+    assert np.allclose(index.n_inv @ n, np.eye(2), atol=1e-9)
+    assert np.all(np.abs(np.sin(index.beta_b - index.beta_a)) >= np.sin(cfg.min_pair_angle) - 1e-12)
+
+
+def test_wall_distance_grid(office: SegmentMap) -> None:
+    walls = wall_distance(office, ("wall",), 0.05)
+    # on the south wall, 1 m north of it, and off the map
+    d = walls.lookup(np.array([10.0, 10.0, -50.0]), np.array([0.0, 1.0, 0.0]))
+    assert d[0] <= 0.05 and abs(d[1] - 1.0) <= 0.06 and np.isinf(d[2])
+
+
+def test_points_seen_through_a_wall_are_flagged(office: SegmentMap) -> None:
+    pose = np.array([2.0, 6.0, 0.0])  # in the corridor (y = 5 .. 7)
+    points = np.array([[0.0, 1.0],  # on the corridor's north wall: visible
+                       [0.0, 3.0]])  # 2 m beyond it: seen through the wall
+    assert seen_directly(pose, points, office, ("wall",), 10.0, 0.25).tolist() == [True, False]
+
+
+def test_config_is_validated() -> None:
+    with pytest.raises(ValidationError):
+        GlobalMatchConfig(min_pair_angle_deg=0.0)
+    with pytest.raises(ValidationError):
+        GlobalMatchConfig(unknown=1)

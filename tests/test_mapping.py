@@ -1,0 +1,274 @@
+"""The segment-map builder: occupancy grids, ROS maps, wall extraction and the whole pipeline."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from conftest import require_data
+
+from fusion.mapping import (
+    GridMapError,
+    OccupancyGrid,
+    build_map,
+    endpoint_coverage,
+    extract_segments,
+    load_ros_map,
+    occupancy_from_log,
+    point_segment_distance,
+    read_reference_scans,
+    scan_endpoints,
+)
+from houghloc import SegmentMap
+from houghloc.segment_map import MapError
+
+RES = 0.05
+INTEL_SLICE = 150
+
+
+# ------------------------------------------------------------------------------------------------
+# A synthetic room: 8 m × 5 m (cell centres), a 0.9 m door in the bottom wall, seen from inside
+# and through the door.
+
+
+def _room(angle_deg: float = 0.0) -> tuple[OccupancyGrid, list[tuple[np.ndarray, np.ndarray]],
+                                           np.ndarray]:
+    """Grid, true wall segments (through cell centres) and the door's centre, in metres."""
+    origin = np.array([-1.0, -2.0]) - RES / 2  # true walls through cell centres
+    corners = np.array([[0.0, 0.0], [8.0, 0.0], [8.0, 5.0], [0.0, 5.0]])
+    door = (3.0, 3.9)  # along the bottom wall
+    c, s = math.cos(math.radians(angle_deg)), math.sin(math.radians(angle_deg))
+    rot = np.array([[c, -s], [s, c]])
+    pivot = np.array([4.0, 2.5])
+
+    def world(p: np.ndarray) -> np.ndarray:
+        return (np.atleast_2d(p) - pivot) @ rot.T + pivot
+
+    def pixels(p: np.ndarray) -> np.ndarray:  # cell-centre coordinates, OpenCV fixed point ×16
+        return np.round(((world(p) - origin) / RES - 0.5) * 16).astype(np.int32)
+
+    shape = (200, 240)
+    occupied = np.zeros(shape, np.uint8)
+    free = np.zeros(shape, np.uint8)
+    cv2.fillPoly(free, [pixels(corners)], 1, shift=4)
+    outside_door = np.array([[door[0], 0.0], [door[1], 0.0], [door[1], -1.5], [door[0], -1.5]])
+    cv2.fillPoly(free, [pixels(outside_door)], 1, shift=4)
+    walls = [
+        (corners[0], np.array([door[0], 0.0])),
+        (np.array([door[1], 0.0]), corners[1]),
+        (corners[1], corners[2]),
+        (corners[2], corners[3]),
+        (corners[3], corners[0]),
+    ]
+    for a, b in walls:
+        cv2.line(occupied, *[tuple(int(v) for v in pixels(p)[0]) for p in (a, b)], 1,
+                 lineType=cv2.LINE_8, shift=4)
+    truth = [(world(a)[0], world(b)[0]) for a, b in walls]
+    door_centre = world(np.array([sum(door) / 2, 0.0]))[0]
+    grid = OccupancyGrid.from_masks(occupied.astype(bool), free.astype(bool), RES, tuple(origin))
+    return grid, truth, door_centre
+
+
+def _nearest_segment_error(segment_map: SegmentMap, a: np.ndarray, b: np.ndarray) -> float:
+    """Largest endpoint distance between the true segment (a, b) and the best extracted one."""
+    errors = np.maximum(
+        np.minimum(np.linalg.norm(segment_map.starts - a, axis=1),
+                   np.linalg.norm(segment_map.ends - a, axis=1)),
+        np.minimum(np.linalg.norm(segment_map.starts - b, axis=1),
+                   np.linalg.norm(segment_map.ends - b, axis=1)),
+    )
+    return float(errors.min())
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 17.0])
+def test_room_walls_within_one_cell_and_door_open(angle_deg: float) -> None:
+    grid, truth, door_centre = _room(angle_deg)
+    m = extract_segments(grid, min_length=0.5, name="room")
+    assert len(m) == len(truth), f"expected one segment per wall, got {len(m)}"
+    for a, b in truth:
+        assert _nearest_segment_error(m, a, b) <= 1.0 * RES + 1e-9
+    # Every wall cell lies within one cell of a segment.
+    wall_points, _ = grid.occupied_points()
+    assert np.all(point_segment_distance(m, wall_points, RES) <= RES)
+    # The doorway stays open: nothing within 0.3 m of its centre.
+    assert np.isinf(point_segment_distance(m, door_centre[None], 0.3)[0])
+    assert m.ids == [f"w{i}" for i in range(len(m))]
+    assert set(m.kinds) == {"wall"} and m.name == "room"
+    # Both pieces of the wall with the door lie on one line (one Hough point).
+    assert m.n_lines == len(truth) - 1
+
+
+def test_occluded_gap_is_bridged_but_a_seen_through_gap_is_not() -> None:
+    grid, truth, _door = _room()
+    occupied = grid.occupied.copy()
+    rows, cols = grid.world_to_cell(np.array([[2.0, 5.0], [2.6, 5.0]]))
+    occupied[rows[0], cols[0]:cols[1]] = False  # a 0.6 m hole in the top wall, never seen through
+    free = grid.free.copy()
+    free[rows[0], cols[0]:cols[1]] = False
+    hidden = OccupancyGrid.from_masks(occupied, free, RES, grid.origin)
+    m = extract_segments(hidden)
+    assert len(m) == len(truth)
+    free[rows[0] - 5:rows[0] + 6, cols[0]:cols[1]] = True  # now the hole is a doorway
+    seen = OccupancyGrid.from_masks(occupied, free, RES, grid.origin)
+    assert len(extract_segments(seen)) == len(truth) + 1
+
+
+def test_empty_grid_is_an_error() -> None:
+    empty = OccupancyGrid.from_masks(np.zeros((20, 20), bool), np.ones((20, 20), bool), RES)
+    with pytest.raises(ValueError, match="occupied"):
+        extract_segments(empty)
+
+
+# ------------------------------------------------------------------------------------------------
+# ROS map_server maps
+
+
+def _write_ros_map(folder: Path, yaml_text: str | None = None, negate: int = 0) -> Path:
+    image = np.full((30, 40), 205, np.uint8)  # unknown
+    image[5:25, 5:35] = 254  # free
+    image[0, 3] = 0  # occupied: top row of the image = highest y
+    if negate:
+        image = 255 - image
+    cv2.imwrite(str(folder / "map.pgm"), image)
+    path = folder / "map.yaml"
+    path.write_text(yaml_text if yaml_text is not None else (
+        "image: map.pgm\nresolution: 0.1\norigin: [-2.0, -1.5, 0.0]\n"
+        f"negate: {negate}\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"))
+    return path
+
+
+@pytest.mark.parametrize("negate", [0, 1])
+def test_ros_map_loads_with_origin_and_resolution(tmp_path: Path, negate: int) -> None:
+    grid = load_ros_map(_write_ros_map(tmp_path, negate=negate))
+    assert grid.resolution == pytest.approx(0.1)
+    assert grid.origin == pytest.approx((-2.0, -1.5))
+    assert grid.shape == (30, 40)
+    assert grid.extent == pytest.approx((-2.0, 2.0, -1.5, 1.5))
+    # The image's top-left pixel region is the grid's highest row: y up, as in ROS.
+    (row, col), = np.argwhere(grid.occupied)
+    assert (row, col) == (29, 3)
+    assert grid.cell_centres(np.array([row]), np.array([col]))[0] == pytest.approx((-1.65, 1.45))
+    assert grid.free.sum() == 20 * 30
+    assert np.isnan(grid.probability[0, 0])
+    assert np.array_equal(grid.image(), np.where(grid.occupied, 0, np.where(grid.free, 254, 205))[
+        ::-1])
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "problem"),
+    [
+        ("image: map.pgm\norigin: [0, 0, 0]\n", "resolution", "missing"),
+        ("image: map.pgm\nresolution: -0.05\norigin: [0, 0, 0]\n", "resolution", "positive"),
+        ("image: map.pgm\nresolution: abc\norigin: [0, 0, 0]\n", "resolution", "number"),
+        ("image: map.pgm\nresolution: 0.05\norigin: [0, 0]\n", "origin", "[x, y, yaw]"),
+        ("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0.5]\n", "origin", "rotated"),
+        ("image: nothere.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n", "image", "not found"),
+        ("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 2\n", "negate", "0 or 1"),
+        ("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nmode: fancy\n", "mode", "trinary"),
+        ("image: map.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nfree_thresh: 0.9\n",
+         "free_thresh", "free < occupied"),
+        ("image: [map.pgm\n", None, "not valid YAML"),
+        ("- a\n- list\n", None, "expected a mapping"),
+    ],
+)
+def test_bad_ros_yaml_names_file_field_and_problem(
+    tmp_path: Path, text: str, field: str | None, problem: str,
+) -> None:
+    path = _write_ros_map(tmp_path, text)
+    with pytest.raises(GridMapError) as info:
+        load_ros_map(path)
+    message = str(info.value)
+    assert str(path) in message and problem in message
+    if field is not None:
+        assert f"'{field}'" in message
+    assert isinstance(info.value, MapError)  # callers handling map errors catch it too
+
+
+def test_ros_map_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(GridMapError, match="file not found"):
+        load_ros_map(tmp_path / "none.yaml")
+
+
+def test_ros_map_not_an_image(tmp_path: Path) -> None:
+    path = _write_ros_map(tmp_path)
+    (tmp_path / "map.pgm").write_text("not an image")
+    with pytest.raises(GridMapError, match="not a readable image"):
+        load_ros_map(path)
+
+
+def test_build_map_from_ros_map(tmp_path: Path) -> None:
+    grid, truth, _ = _room()
+    cv2.imwrite(str(tmp_path / "room.pgm"), grid.image())
+    ox, oy = grid.origin
+    (tmp_path / "room.yaml").write_text(
+        f"image: room.pgm\nresolution: {RES}\norigin: [{ox}, {oy}, 0.0]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    m = build_map(tmp_path / "room.yaml", tmp_path / "out" / "room-map.yaml")
+    assert len(m) == len(truth)
+    assert SegmentMap.from_yaml(tmp_path / "out" / "room-map.yaml").name == "room-map"
+    assert (tmp_path / "out" / "room-map.png").stat().st_size > 0
+
+
+# ------------------------------------------------------------------------------------------------
+# The Intel lab, first scans of the corrected log
+
+
+@pytest.fixture(scope="module")
+def intel_slice() -> tuple[Path, list]:
+    path = require_data("intel", "intel.gfs.log")
+    return path, read_reference_scans(path, max_scans=INTEL_SLICE)
+
+
+def test_intel_occupancy_grid(intel_slice: tuple[Path, list], tmp_path: Path) -> None:
+    path, scans = intel_slice
+    grid = occupancy_from_log(path, max_scans=INTEL_SLICE)
+    assert grid.resolution == RES and grid.hit_count is not None
+    endpoints = scan_endpoints(scans)
+    rows, cols = grid.world_to_cell(endpoints)
+    assert grid.inside(rows, cols).all()
+    assert grid.hit_count.sum() == len(endpoints)
+    # Most endpoints land on occupied cells; the robot's own positions are free.
+    assert grid.occupied[rows, cols].mean() > 0.9
+    poses = np.array([s.reference for s in scans])
+    prow, pcol = grid.world_to_cell(poses[:, :2])
+    assert grid.free[prow, pcol].mean() > 0.9
+    grid.to_png(tmp_path / "grid.png")
+    assert cv2.imread(str(tmp_path / "grid.png")).shape[:2] == grid.shape
+
+
+def test_intel_slice_map(intel_slice: tuple[Path, list], tmp_path: Path) -> None:
+    path, scans = intel_slice
+    out = tmp_path / "intel.yaml"
+    m = build_map(path, out, max_scans=INTEL_SLICE)
+    assert 20 <= len(m) <= 400
+    reloaded = SegmentMap.from_yaml(out)
+    assert len(reloaded) == len(m) and reloaded.name == "intel"
+    assert np.allclose(reloaded.starts, m.starts) and np.allclose(reloaded.ends, m.ends)
+    assert (tmp_path / "intel.png").stat().st_size > 10_000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["intel.png", "intel.yaml"]  # no temp
+    assert m.lengths.min() >= 0.5
+    coverage = endpoint_coverage(m, scan_endpoints(scans), tolerance=0.10)
+    assert coverage >= 0.80, f"only {coverage:.1%} of the endpoints within 10 cm of a wall"
+
+
+def test_raw_log_cannot_be_mapped(tmp_path: Path) -> None:
+    log = tmp_path / "raw.log"
+    log.write_text("ODOM 0 0 0 0 0 0 1.0 host 1.0\n"
+                   "FLASER 3 1.0 1.0 1.0 0 0 0 0 0 0 1.1 host 1.1\n"
+                   "ODOM 0.1 0 0 0 0 0 1.2 host 1.2\n")
+    with pytest.raises(ValueError, match="reference pose"):
+        occupancy_from_log(log)
+
+
+def test_point_segment_distance_is_exact() -> None:
+    m = SegmentMap([[0.0, 0.0]], [[2.0, 0.0]])
+    points = np.array([[1.0, 0.05], [2.03, 0.04], [-0.2, 0.0], [1.0, -0.099]])
+    d = point_segment_distance(m, points, 0.1)
+    assert d[0] == pytest.approx(0.05)
+    assert d[1] == pytest.approx(0.05)
+    assert np.isinf(d[2])
+    assert d[3] == pytest.approx(0.099)
+    assert endpoint_coverage(m, points, 0.1) == pytest.approx(0.75)

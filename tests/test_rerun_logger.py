@@ -1,0 +1,252 @@
+"""The Rerun logger: same interface as the no-op logger, every stage in the recording, every scan
+on the ``scan`` timeline, serving on localhost only.
+
+Scans are simulated on the RoboCup map (points on its walls seen from known poses) and pushed
+through ``localize_scan``, so the logger sees real corrections; the ``.rrd`` is read back with
+``rerun.chunk.RrdReader``.
+"""
+
+from __future__ import annotations
+
+import inspect
+import socket
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+from rerun.chunk import RrdReader
+
+from fusion.ekf import UpdateOutcome
+from fusion.localizer import Estimate
+from fusion.rerun_logger import (
+    SERVE_HOST,
+    RerunLogger,
+    covariance_ellipse,
+    line_palette,
+    web_viewer_command,
+)
+from fusion.visualize import NullLogger
+from houghloc import ScanCorrection, SegmentMap, localize_scan
+
+N_SCANS = 12
+COV = np.diag([0.02**2, 0.03**2, np.radians(1.0) ** 2])
+
+
+def wall_scan(m: SegmentMap, pose: np.ndarray, n_beams: int = 361, sigma: float = 0.005,
+              seed: int = 0) -> np.ndarray:
+    """Robot-frame points where the beams of a 360° laser first hit a wall."""
+    rng = np.random.default_rng(seed)
+    bearing = np.linspace(-np.pi, np.pi, n_beams, endpoint=False)
+    d = np.column_stack((np.cos(bearing + pose[2]), np.sin(bearing + pose[2])))
+    walls = np.flatnonzero(m.is_wall)
+    p0 = m.starts[walls] - pose[:2]
+    e = m.ends[walls] - m.starts[walls]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]
+        t = (p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]) / den
+        u = (p0[:, 0] * d[:, 1:] - p0[:, 1] * d[:, :1]) / den
+    r = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf).min(axis=1)
+    r = r + rng.normal(0.0, sigma, n_beams)
+    keep = np.isfinite(r)
+    return np.column_stack((r * np.cos(bearing), r * np.sin(bearing)))[keep]
+
+
+@pytest.fixture(scope="module")
+def drive(robocup: SegmentMap) -> list[tuple[float, np.ndarray, np.ndarray, ScanCorrection,
+                                             Estimate]]:
+    """(t, true pose, points, correction, estimate) of a short drive across the field."""
+    out = []
+    for i in range(N_SCANS):
+        t = 0.1 * i
+        truth = np.array([-2.0 + 0.25 * i, 0.5 * np.sin(0.3 * i), 0.2 + 0.05 * i])
+        points = wall_scan(robocup, truth, seed=i)
+        fix = localize_scan(points, robocup, truth + np.array([0.04, -0.03, 0.01]))
+        innovation = fix.pose - truth
+        outcome = UpdateOutcome(True, 1.5, 3, innovation)
+        out.append((t, truth, points, fix, Estimate(t, fix.pose, COV, "accepted", fix, outcome)))
+    return out
+
+
+def replay(logger: RerunLogger, robocup: SegmentMap, drive: list) -> None:
+    logger.log_map(robocup)
+    for i, (t, truth, points, fix, estimate) in enumerate(drive):
+        logger.log_odometry(t, truth + np.array([10.0, -5.0, 0.0]))  # an arbitrary odometry frame
+        logger.log_scan(t, i, "laser", points, fix, estimate)
+        logger.log_truth(t, truth)  # after the scan: errors must not depend on the order
+    logger.log_state(drive[-1][0], "collecting", "ambiguous correspondence")
+    logger.log_hypotheses(drive[-1][0], np.array([[0.0, 0.0, 0.0], [1.0, 1.0, np.pi]]),
+                          np.array([0.9, 0.4]))
+    logger.close()
+
+
+def chunks_by_entity(path: Path) -> dict[str, list[pa.RecordBatch]]:
+    out: dict[str, list[pa.RecordBatch]] = defaultdict(list)
+    for chunk in RrdReader(path).stream().to_chunks():
+        out[chunk.entity_path.lstrip("/")].append(chunk.to_record_batch())
+    return out
+
+
+def values(batches: list[pa.RecordBatch], column: str) -> np.ndarray:
+    """Every instance of one component over the temporal chunks of an entity, in one array."""
+    return np.concatenate([b.column(column).flatten().to_numpy(zero_copy_only=False)
+                           for b in batches if column in b.schema.names])
+
+
+def scan_indices(batches: list[pa.RecordBatch]) -> list[int]:
+    return sorted(i for b in batches if "scan" in b.schema.names
+                  for i in b.column("scan").to_pylist())
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory: pytest.TempPathFactory, robocup: SegmentMap,
+              drive: list) -> dict[str, list[pa.RecordBatch]]:
+    path = tmp_path_factory.mktemp("rrd") / "run.rrd"
+    replay(RerunLogger(path, recording_name="test drive"), robocup, drive)
+    return chunks_by_entity(path)
+
+
+def test_same_methods_and_signatures_as_the_null_logger() -> None:
+    def public(cls: type) -> dict[str, inspect.Signature]:
+        methods = inspect.getmembers(cls, inspect.isfunction)
+        return {name: inspect.signature(f) for name, f in methods if not name.startswith("_")}
+
+    assert public(RerunLogger) == public(NullLogger)
+
+
+def test_recording_holds_every_stage(recording: dict[str, list[pa.RecordBatch]]) -> None:
+    expected = [
+        "world/map/walls", "world/map/lines", "world/scan/points", "world/robot/estimate",
+        "world/robot/covariance", "world/robot/truth", "world/path/estimate/0",
+        "world/path/odometry/0", "world/path/truth/0", "hough/accumulator", "hough/peaks",
+        "hough/references", "hough/matches", "metrics/innovation/x", "metrics/innovation/y",
+        "metrics/innovation/theta", "metrics/nis", "metrics/sigma/x", "metrics/sigma/y",
+        "metrics/sigma/theta", "metrics/error/position", "metrics/error/heading",
+        "metrics/matches", "log/state", "global/hypotheses",
+    ]
+    missing = [e for e in expected if e not in recording]
+    assert not missing, f"not in the recording: {missing}"
+
+
+def test_every_scan_is_on_the_scan_timeline(recording: dict[str, list[pa.RecordBatch]]) -> None:
+    assert scan_indices(recording["world/scan/points"]) == list(range(N_SCANS))
+    for entity in ("world/robot/estimate", "hough/peaks", "metrics/sigma/x"):
+        assert scan_indices(recording[entity]) == list(range(N_SCANS)), entity
+
+
+def test_errors_for_every_scan_whatever_the_order_of_truth_and_scan(
+        recording: dict[str, list[pa.RecordBatch]], drive: list) -> None:
+    assert scan_indices(recording["metrics/error/position"]) == list(range(N_SCANS))
+    errors = values(recording["metrics/error/position"], "Scalars:scalars")
+    expected = [np.hypot(*(est.pose[:2] - truth[:2])) for _, truth, _, _, est in drive]
+    assert np.allclose(np.sort(errors), np.sort(expected), atol=1e-9)
+
+
+def test_map_and_static_data_are_logged_once(
+        recording: dict[str, list[pa.RecordBatch]]) -> None:
+    walls = recording["world/map/walls"]
+    assert len(walls) == 1 and "scan" not in walls[0].schema.names
+
+
+def test_matched_points_take_their_map_lines_colour(
+        recording: dict[str, list[pa.RecordBatch]], drive: list) -> None:
+    colours = values(recording["world/scan/points"], "Points2D:colors").astype(np.uint32)
+    fix = drive[0][3]
+    assert fix.matches is not None and len(fix.matches) >= 2
+    palette = line_palette(int(fix.matched_map_lines.max()) + 1)
+    packed = (palette[:, 0].astype(np.uint32) << 24 | palette[:, 1].astype(np.uint32) << 16
+              | palette[:, 2].astype(np.uint32) << 8 | palette[:, 3])
+    assert np.isin(packed[fix.matched_map_lines], colours).all()
+
+
+def test_accumulator_every_n_scans(tmp_path: Path, robocup: SegmentMap, drive: list) -> None:
+    path = tmp_path / "sparse.rrd"
+    replay(RerunLogger(path, accumulator_every=5), robocup, drive)
+    recording = chunks_by_entity(path)
+    assert scan_indices(recording["hough/accumulator"]) == [0, 5, 10]
+    assert scan_indices(recording["hough/peaks"]) == list(range(N_SCANS))
+
+
+def test_unix_clock_becomes_a_timestamp_timeline(tmp_path: Path, robocup: SegmentMap,
+                                                 drive: list) -> None:
+    path = tmp_path / "wall-clock.rrd"
+    logger = RerunLogger(path, accumulator_every=0)
+    t, _, points, fix, estimate = drive[0]
+    logger.log_scan(1.7e9 + t, 0, "laser", points, fix, estimate)
+    logger.close()
+    batch = chunks_by_entity(path)["world/scan/points"][0]
+    assert pa.types.is_timestamp(batch.schema.field("time").type)
+
+
+def test_loggers_are_independent_of_each_other_and_of_the_global_recording(
+        tmp_path: Path, robocup: SegmentMap, drive: list) -> None:
+    import rerun as rr
+
+    a, b = RerunLogger(tmp_path / "a.rrd"), RerunLogger(tmp_path / "b.rrd")
+    assert rr.get_global_data_recording() is None
+    replay(a, robocup, drive[:2])
+    replay(b, robocup, drive[:4])
+    assert scan_indices(chunks_by_entity(tmp_path / "a.rrd")["world/scan/points"]) == [0, 1]
+    assert scan_indices(chunks_by_entity(tmp_path / "b.rrd")["world/scan/points"]) == [0, 1, 2,
+                                                                                          3]
+
+
+def test_recording_carries_the_default_blueprint(tmp_path: Path) -> None:
+    path = tmp_path / "empty.rrd"
+    RerunLogger(path).close()
+    assert len(RrdReader(path).blueprints()) == 1
+
+
+def test_without_a_sink_the_recording_stays_in_memory(robocup: SegmentMap, drive: list) -> None:
+    logger = RerunLogger()
+    replay(logger, robocup, drive[:2])
+    assert logger.memory is not None and logger.memory.num_msgs() > 0
+
+
+def test_covariance_ellipse_is_the_95_percent_contour() -> None:
+    ellipse = covariance_ellipse([1.0, 2.0], np.diag([0.04, 0.01]))
+    d = ellipse - [1.0, 2.0]
+    assert np.allclose((d**2 / [0.04, 0.01]).sum(axis=1), 5.991464547107979)
+
+
+def test_serving_binds_localhost_only(tmp_path: Path) -> None:
+    """The gRPC server really listens on 127.0.0.1 (read from /proc); the web viewer is a child
+    process whose command line is checked, not launched (slow, and it would open a port)."""
+    assert SERVE_HOST == "127.0.0.1"
+    command = web_viewer_command("rerun+http://127.0.0.1:9876/proxy", 9090)
+    assert command[command.index("--bind") + 1] == "127.0.0.1"
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    logger = RerunLogger(tmp_path / "served.rrd", serve=True, grpc_port=port, web_port=None)
+    try:
+        assert logger.grpc_url == f"rerun+http://127.0.0.1:{port}/proxy"
+        tables = [Path("/proc/net/tcp"), Path("/proc/net/tcp6")]
+        if not tables[0].exists():
+            pytest.skip("no /proc/net/tcp to read listening sockets from")
+        listening = [line.split()[1] for table in tables if table.exists()
+                     for line in table.read_text().splitlines()[1:]
+                     if line.split()[3] == "0A"]  # state LISTEN
+        mine = [addr for addr in listening if int(addr.rsplit(":", 1)[1], 16) == port]
+        assert mine == [f"0100007F:{port:04X}"]  # 127.0.0.1 only, no 0.0.0.0 nor [::]
+    finally:
+        logger.close()
+
+
+def test_points_off_every_line_are_grey(tmp_path: Path, robocup: SegmentMap,
+                                        drive: list) -> None:
+    t, truth, points, _, estimate = drive[0]
+    clutter = np.random.default_rng(7).uniform(-0.4, 0.4, (30, 2))  # a person near the robot
+    scan = np.vstack((points, clutter))
+    fix = localize_scan(scan, robocup, truth)
+    path = tmp_path / "clutter.rrd"
+    logger = RerunLogger(path, accumulator_every=0)
+    logger.log_map(robocup)
+    logger.log_scan(t, 0, "laser", scan, fix, estimate)
+    logger.close()
+    colours = values(chunks_by_entity(path)["world/scan/points"], "Points2D:colors")
+    grey = np.uint32(100 << 24 | 100 << 16 | 100 << 8 | 255)  # UNMATCHED
+    assert len(colours) == len(scan)
+    assert (colours[-len(clutter):] == grey).mean() > 0.9
+    assert (colours[: len(points)] != grey).mean() > 0.75  # corners and short pieces: grey
