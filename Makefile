@@ -25,7 +25,7 @@ test-all: setup
 	$(BIN)/python -m pytest -q
 
 bench: setup
-	$(BIN)/python benchmarks/run_all.py
+	$(BIN)/python -m benchmarks.run_all
 
 lint: setup
 	$(BIN)/ruff check houghloc fusion tests benchmarks

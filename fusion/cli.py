@@ -13,6 +13,7 @@ import argparse
 import logging
 import math
 import sys
+import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -158,6 +159,7 @@ def cmd_run(args: argparse.Namespace) -> int:
                            {"map": str(args.map), "log": str(args.log),
                             "ground_truth": str(gt_path) if gt_path else None})
     write_metrics(args.out / "metrics.json", doc)
+    _serve_until_interrupted(args, logger)
     logger.close()
     print(f"{len(result.t)} scans in {result.seconds['total']:.1f} s "
           f"({result.scans_per_second:.0f} scans/s); fixes accepted {loc.stats.accepted}, "
@@ -193,6 +195,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
                                                         "seed": args.seed})
     dead_reckoning = accuracy(_resampled(odometry_only, result.t), truth)
     write_metrics(args.out / "metrics.json", {**fused, "odometry_only": dead_reckoning})
+    _serve_until_interrupted(args, logger)
     logger.close()
     print()
     _print_accuracy_rows([("odometry only", dead_reckoning), ("houghloc (fused)", fused)])
@@ -293,6 +296,19 @@ def _make_logger(args: argparse.Namespace, path: Path):
     except ImportError:
         return NullLogger()
     return RerunLogger(None if args.no_rerun else path, serve=args.serve)
+
+
+def _serve_until_interrupted(args: argparse.Namespace, logger: Any) -> None:
+    """With --serve the viewer lives as long as the logger: keep it up until Ctrl-C."""
+    if not getattr(args, "serve", False) or not hasattr(logger, "web_url"):
+        return
+    logger.flush()
+    print(f"Rerun web viewer on {logger.web_url} (localhost only) — Ctrl-C to stop")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        print()
 
 
 def _resampled(traj, t: np.ndarray):

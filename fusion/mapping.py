@@ -906,6 +906,7 @@ def _temporary_beside(path: Path) -> Iterator[Path]:
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     tmp = Path(name)
+    tmp.chmod(0o644)  # mkstemp makes it private; a map is an ordinary, readable file
     try:
         yield tmp
     finally:

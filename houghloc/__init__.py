@@ -7,9 +7,11 @@
 """
 
 from houghloc.config import HoughConfig
+from houghloc.global_match import GlobalMatchConfig, GlobalResult, Hypothesis, global_match
 from houghloc.localize import ScanCorrection, localize_scan, observe_lines
 from houghloc.segment_map import MapError, References, SegmentMap
 
-__all__ = ["HoughConfig", "MapError", "References", "ScanCorrection", "SegmentMap",
-           "localize_scan", "observe_lines"]
+__all__ = ["GlobalMatchConfig", "GlobalResult", "HoughConfig", "Hypothesis", "MapError",
+           "References", "ScanCorrection", "SegmentMap", "global_match", "localize_scan",
+           "observe_lines"]
 __version__ = "0.1.0"

@@ -21,12 +21,19 @@ def atomic_write_text(path: str | Path, text: str, encoding: str = "utf-8") -> P
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp_name, 0o666 & ~_umask())  # mkstemp makes it private; a result is not
         os.replace(tmp_name, path)
     except BaseException:
         # Leave no stray temporary file behind, whatever went wrong (even KeyboardInterrupt).
         Path(tmp_name).unlink(missing_ok=True)
         raise
     return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def atomic_write_json(path: str | Path, obj: Any, indent: int = 2) -> Path:
