@@ -16,6 +16,7 @@ from typing import Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from fusion.ambiguity import AmbiguityConfig
 from fusion.motion import OdometryMotionConfig
 from houghloc import HoughConfig
 
@@ -59,6 +60,7 @@ class LocalizerConfig(_Strict):
 
     sensors: dict[str, SensorConfig] = Field(default_factory=lambda: {"laser": SensorConfig()})
     filter: FilterConfig = FilterConfig()
+    ambiguity: AmbiguityConfig = AmbiguityConfig()
 
     @classmethod
     def from_yaml(cls, path: str | Path | None) -> LocalizerConfig:

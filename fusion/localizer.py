@@ -15,6 +15,7 @@ from time import perf_counter
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.ambiguity import AmbiguityManager, State
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
 from fusion.tracker import PoseTracker
@@ -64,7 +65,10 @@ class Localizer:
         self.tracker = PoseTracker(pose, fc.initial_cov, fc.motion, fc.history_seconds,
                                    fc.gate_probability, fc.delayed_updates)
         self.stats = LocalizerStats()
+        self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
         self.logger.log_map(map)
+        if initial_pose is None:
+            self.manager.start_lost(0.0, "no initial pose: global localization")
 
     @classmethod
     def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,
@@ -104,6 +108,8 @@ class Localizer:
         cfg = self._sensor(sensor)
         self.stats.scans += 1
         points = _to_base(np.asarray(points, dtype=float).reshape(-1, 2), cfg)
+        if self.manager.state is not State.TRACKING:
+            return self._global_step(t, points, sensor)
         prior = self.tracker.pose_at(t)
         if prior is None:
             return self._finish(t, "dropped", None, None, sensor, points)
@@ -113,16 +119,33 @@ class Localizer:
         t1 = perf_counter()
         self.stats.seconds["hough"] += t1 - t0
         if fix.ambiguous:
-            return self._finish(t, "ambiguous", fix, None, sensor, points)
-        if fix.rank == 0:
-            return self._finish(t, "no-fix", fix, None, sensor, points)
-        newest = self.tracker.time
-        if newest is not None and t < newest:
-            self.stats.late += 1
-        outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
-        self.stats.seconds["update"] += perf_counter() - t1
-        self.stats.partial_rank += fix.rank < 3
-        return self._finish(t, outcome.status, fix, outcome, sensor, points)
+            estimate = self._finish(t, "ambiguous", fix, None, sensor, points)
+        elif fix.rank == 0:
+            estimate = self._finish(t, "no-fix", fix, None, sensor, points)
+        else:
+            newest = self.tracker.time
+            if newest is not None and t < newest:
+                self.stats.late += 1
+            outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
+            self.stats.seconds["update"] += perf_counter() - t1
+            self.stats.partial_rank += fix.rank < 3
+            estimate = self._finish(t, outcome.status, fix, outcome, sensor, points)
+        self.manager.tracking_step(t, estimate.status, estimate.cov)
+        return estimate
+
+    def _global_step(self, t: float, points: NDArray, sensor: str) -> Estimate:
+        """Strategy (ii): accumulate this view; the manager may find the pose and re-initialise
+        the filter; until then the estimate is odometry only, reported with the state."""
+        odom = self.tracker.odometry_at(t)
+        if odom is None:  # no odometry yet: views cannot be related, wait for it
+            return self._finish(t, self.manager.state.value, None, None, sensor, points)
+        t0 = perf_counter()
+        decision = self.manager.collecting_step(t, odom, points)
+        self.stats.seconds["global"] = self.stats.seconds.get("global", 0.0) + perf_counter() - t0
+        if decision.reset_pose is not None:
+            self.tracker.reset(decision.reset_pose, decision.reset_cov)
+            return self._finish(t, "relocalized", None, None, sensor, points)
+        return self._finish(t, self.manager.state.value, None, None, sensor, points)
 
     def _finish(self, t: float, status: str, fix: ScanCorrection | None,
                 outcome: UpdateOutcome | None, sensor: str, points: NDArray) -> Estimate:

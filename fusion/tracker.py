@@ -140,6 +140,19 @@ class PoseTracker:
         return self._ekf.x.copy(), self._ekf.P.copy()
 
     # ---------------------------------------------------------------------------- odometry
+    def odometry_at(self, t: float) -> NDArray[np.float64] | None:
+        """The odometry pose (its own frame) at time t, interpolated inside the history; the
+        newest reading for later times; None before any odometry or before the history."""
+        if not self._nodes:
+            return None
+        if not math.isfinite(t) or t < self._nodes[0].t:
+            return None
+        j = bisect_right(self._nodes, t, key=_node_time) - 1
+        node = self._nodes[j]
+        if j == len(self._nodes) - 1 or t == node.t:
+            return node.odom.copy()
+        return self._split(node, self._nodes[j + 1], t)[0]
+
     def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
         """Predict with the increment since the previous odometry reading (the first one only
         anchors the odometry frame). Backwards timestamps are ignored and counted; a repeated

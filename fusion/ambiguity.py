@@ -1,0 +1,244 @@
+"""The ambiguity manager (DESIGN §3.6, §4): when tracking can't be trusted, switch to the
+paper's global strategy (ii) — accumulate several views, match the whole set of peaks to the
+whole map — and back.
+
+States and triggers::
+
+    tracking ──(ambiguous matches, repeated rejections or scans without a fix, covariance
+    │           too large for the map's line spacing, a kidnap)──▶ collecting
+    collecting ──(enough views: at least two non-parallel lines)──▶ relocalizing
+    relocalizing ──(one clear hypothesis)──▶ tracking (filter re-initialised from it)
+                 ──(a tie: a symmetric map)──▶ collecting, hypotheses kept and carried by
+                   odometry until the evidence breaks the tie
+                 ──(nothing fits, repeatedly)──▶ lost (still collecting)
+    no initial pose ──▶ lost
+
+Every transition is recorded with its reason (``transitions``), counted in ``counts`` and
+logged.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter, deque
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from houghloc import GlobalMatchConfig, GlobalResult, SegmentMap, global_match, observe_lines
+from houghloc.geometry import compose, relative, transform_points
+
+
+class State(StrEnum):
+    TRACKING = "tracking"
+    COLLECTING = "collecting"
+    RELOCALIZING = "relocalizing"
+    LOST = "lost"
+
+
+class AmbiguityConfig(BaseModel):
+    """When to stop trusting the tracker, and how to find the pose again."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_scans_without_fix: int = Field(
+        5, ge=1, description="consecutive scans rejected, ambiguous or unmatched")
+    max_position_sigma_fraction: float = Field(
+        0.5, gt=0.0, description="σ_xy beyond this fraction of the closest parallel-line "
+        "spacing makes nearest-neighbour matching unsafe")
+    min_views: int = Field(5, ge=1, description="views accumulated before a global match")
+    max_views: int = Field(30, ge=1, description="sliding window of accumulated views")
+    view_spacing: float = Field(
+        0.03, ge=0.0, description="m travelled (or view_spacing_deg turned) between views: a "
+        "robot standing still adds no evidence")
+    view_spacing_deg: float = Field(2.0, ge=0.0)
+    max_points: int = Field(4000, ge=100, description="accumulated points kept (subsampled)")
+    min_score: float = Field(0.85, ge=0.0, le=1.0, description="global hypothesis acceptance")
+    decisive_margin: float = Field(
+        0.05, ge=0.0, description="the winner must beat any other pose by this much; closer "
+        "rivals are a tie and more views are collected")
+    reinit_sigma_xy: float = Field(0.05, gt=0.0, description="m, floor on the new covariance")
+    reinit_sigma_theta_deg: float = Field(1.0, gt=0.0)
+    failures_until_lost: int = Field(3, ge=1)
+    retry_every: int = Field(3, ge=1, description="scans between global attempts")
+    global_match: GlobalMatchConfig = GlobalMatchConfig()
+
+
+@dataclass(frozen=True, slots=True)
+class Transition:
+    t: float
+    old: State
+    new: State
+    reason: str
+
+
+@dataclass
+class _View:
+    odom: NDArray[np.float64]
+    points: NDArray[np.float64]
+
+
+@dataclass
+class Decision:
+    """What the localizer must do after a scan: nothing, or re-initialise the filter."""
+
+    reset_pose: NDArray[np.float64] | None = None
+    reset_cov: NDArray[np.float64] | None = None
+    result: GlobalResult | None = None
+
+
+@dataclass
+class AmbiguityManager:
+    map: SegmentMap
+    config: AmbiguityConfig = field(default_factory=AmbiguityConfig)
+    state: State = State.TRACKING
+    transitions: list[Transition] = field(default_factory=list)
+    counts: Counter = field(default_factory=Counter)
+    hypotheses: list[NDArray[np.float64]] = field(default_factory=list)  # in the latest view
+    _views: deque = field(default_factory=deque)
+    _without_fix: int = 0
+    _failures: int = 0
+    _since_attempt: int = 0
+    _hyp_odom: NDArray[np.float64] | None = None
+    logger: object | None = None
+
+    def __post_init__(self) -> None:
+        self._line_spacing = _closest_parallel_spacing(self.map)
+
+    # ------------------------------------------------------------------ tracking-mode triggers
+    def start_lost(self, t: float, reason: str) -> None:
+        self._go(t, State.LOST, reason)
+
+    def tracking_step(self, t: float, status: str, cov: NDArray) -> None:
+        """After a tracking scan: count scans without a usable fix; check the covariance."""
+        if self.state is not State.TRACKING:
+            return
+        self._without_fix = 0 if status == "accepted" else self._without_fix + 1
+        if self._without_fix >= self.config.max_scans_without_fix:
+            self._go(t, State.COLLECTING,
+                     f"{self._without_fix} scans without a usable fix (last: {status})")
+            return
+        sigma = math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
+        limit = self.config.max_position_sigma_fraction * self._line_spacing
+        if sigma > limit:
+            self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the spacing "
+                                          f"of parallel lines ({self._line_spacing:.2f} m)")
+
+    # ------------------------------------------------------------------ global mode
+    def collecting_step(self, t: float, odom: NDArray, points: NDArray) -> Decision:
+        """Accumulate a view; when there are enough, match the set; decide."""
+        odom = np.asarray(odom, float)
+        if self._views and not self._moved_since_last_view(odom):
+            return Decision()
+        self._views.append(_View(odom, points))
+        while len(self._views) > self.config.max_views:
+            self._views.popleft()
+        self._since_attempt += 1
+        if len(self._views) < self.config.min_views or (
+                self._since_attempt < self.config.retry_every and self._failures):
+            return Decision()
+        self._since_attempt = 0
+        previous = self.state
+        self._go(t, State.RELOCALIZING, f"{len(self._views)} views accumulated")
+        pts = self.accumulated_points()
+        _, _, lines = observe_lines(pts, self.config.global_match.hough)
+        result = global_match(lines, pts, self.map, self.config.global_match)
+        self.counts["global_matches"] += 1
+        decision = self._decide(t, result, previous)
+        decision.result = result
+        return decision
+
+    def _moved_since_last_view(self, odom: NDArray) -> bool:
+        step = relative(self._views[-1].odom, odom)
+        return (math.hypot(step[0], step[1]) >= self.config.view_spacing
+                or abs(step[2]) >= math.radians(self.config.view_spacing_deg))
+
+    def accumulated_points(self) -> NDArray[np.float64]:
+        """All views' points in the latest view's robot frame, by odometry."""
+        latest = self._views[-1].odom
+        chunks = [transform_points(relative(latest, v.odom), v.points) for v in self._views]
+        pts = np.concatenate(chunks) if chunks else np.empty((0, 2))
+        if len(pts) > self.config.max_points:
+            pts = pts[np.linspace(0, len(pts) - 1, self.config.max_points).astype(int)]
+        return pts
+
+    def _decide(self, t: float, result: GlobalResult, previous: State) -> Decision:
+        good = [h for h in result.hypotheses if h.score >= self.config.min_score]
+        if not good:
+            self._failures += 1
+            lost = self._failures >= self.config.failures_until_lost
+            self._go(t, State.LOST if lost else State.COLLECTING,
+                     f"no global hypothesis ({result.reason or 'none scored enough'})")
+            return Decision()
+        top = good[0].score
+        rivals = [h for h in result.hypotheses[1:] if h.score > top - self.config.decisive_margin]
+        if result.ambiguous or rivals:
+            tied = [good[0], *rivals]
+            self.hypotheses = [h.pose for h in tied]
+            self._hyp_odom = self._views[-1].odom.copy()
+            self.counts["ties"] += 1
+            self._go(t, State.COLLECTING,
+                     f"{len(tied)} hypotheses tie (score {top:.2f}): symmetric map, collecting")
+            self._log_hypotheses(t, tied)
+            return Decision()
+        best = good[0]
+        self._failures = 0
+        self.hypotheses = []
+        cov = np.array(best.cov, dtype=float)
+        floor = np.diag([self.config.reinit_sigma_xy**2] * 2
+                        + [math.radians(self.config.reinit_sigma_theta_deg) ** 2])
+        cov = np.maximum(cov, 0.0) + floor
+        self._views.clear()
+        self._without_fix = 0
+        self._log_hypotheses(t, [best])
+        self._go(t, State.TRACKING, f"relocalized: score {best.score:.2f}, "
+                                    f"{best.n_lines_explained} lines explained")
+        return Decision(np.asarray(best.pose, float), cov)
+
+    def carried_hypotheses(self, odom: NDArray) -> list[NDArray[np.float64]]:
+        """The tied hypotheses moved by the odometry since they were found."""
+        if not self.hypotheses or self._hyp_odom is None:
+            return []
+        step = relative(self._hyp_odom, odom)
+        return [compose(h, step) for h in self.hypotheses]
+
+    def _go(self, t: float, new: State, reason: str) -> None:
+        if new is self.state and new is not State.COLLECTING:
+            return
+        if new is State.COLLECTING and self.state is State.TRACKING:
+            self._views.clear()
+            self._failures = 0
+            self._since_attempt = 0
+        self.transitions.append(Transition(t, self.state, new, reason))
+        self.counts[f"{self.state.value}->{new.value}"] += 1
+        self.state = new
+        if self.logger is not None:
+            self.logger.log_state(t, new.value, reason)
+
+    def _log_hypotheses(self, t: float, hyps: list) -> None:
+        if self.logger is not None:
+            self.logger.log_hypotheses(t, np.array([h.pose for h in hyps]),
+                                       np.array([h.score for h in hyps]))
+
+    def summary(self) -> dict:
+        return {"state": self.state.value, "transitions": len(self.transitions),
+                "counts": dict(self.counts),
+                "log": [{"t": round(tr.t, 3), "from": tr.old.value, "to": tr.new.value,
+                         "reason": tr.reason} for tr in self.transitions[-50:]]}
+
+
+def _closest_parallel_spacing(m: SegmentMap, angle_tol: float = math.radians(2.0)) -> float:
+    """The smallest distance between two parallel map lines (how far nearest-neighbour matching
+    can be trusted); large when no two lines are parallel."""
+    a, r = m.line_alpha, m.line_r
+    if len(a) < 2:
+        return math.inf
+    da = np.abs((a[:, None] - a[None, :] + np.pi / 2) % np.pi - np.pi / 2)
+    parallel = (da < angle_tol) & ~np.eye(len(a), dtype=bool)
+    same_sense = np.abs(a[:, None] - a[None, :]) < np.pi / 2
+    gap = np.abs(np.where(same_sense, r[:, None] - r[None, :], r[:, None] + r[None, :]))
+    gap = np.where(parallel & (gap > 0.05), gap, np.inf)
+    return float(gap.min())
