@@ -137,8 +137,9 @@ class AmbiguityManager:
         while len(self._views) > self.config.max_views:
             self._views.popleft()
         self._since_attempt += 1
-        if len(self._views) < self.config.min_views or (
-                self._since_attempt < self.config.retry_every and self._failures):
+        # after failures, wait longer between attempts (a global match costs tens of scans)
+        wait = self.config.retry_every * 2 ** min(self._failures, 4) if self._failures else 0
+        if len(self._views) < self.config.min_views or self._since_attempt < wait:
             return Decision()
         self._since_attempt = 0
         previous = self.state

@@ -50,7 +50,7 @@ def _describe(exc: Exception) -> str:
     from fusion.io.errors import LogError
     from houghloc.segment_map import MapError
 
-    if isinstance(exc, MapError | ConfigError | LogError | CliError):
+    if isinstance(exc, MapError | ConfigError | LogError | CliError | ValueError):
         return str(exc)
     if isinstance(exc, FileNotFoundError | PermissionError | IsADirectoryError):
         return f"{exc.strerror}: {exc.filename}"

@@ -13,17 +13,20 @@ The pipeline, one function per stage:
    ``HoughLinesP``, whose output on thick, noisy walls is a bundle of overlapping, slightly
    rotated fragments). On a wall one to three cells thick it reports the two edges of the wall,
    half a cell outside the cell centres — so every candidate is only a hypothesis:
-3. **Refinement.** Each candidate is refitted by total least squares to the occupied cells within
-   1.5 cells of it (their hit centroids when the grid has them, else the cell centres), which pulls
-   both edges onto the wall.
+3. **Refinement.** Each candidate is refitted by total least squares to the occupied cells near
+   it (their hit centroids when the grid has them, else the cell centres): first within σ + 1.5
+   cells, then within 1.5 cells of the refitted line, which pulls both edges onto the wall. A
+   refit that turns the line by more than 5° was a blob of clutter and is dropped.
 4. **Collinear grouping.** Candidates, longest first, join a group whose line they match (angle
    within a few degrees, both ends within 1.5 cells) and whose extent is at most a door away;
    a group is one wall line. Duplicates of one wall face fall into one group here.
 5. **Segments.** Each occupied cell is assigned to the nearest group line (so a cell supports one
    wall only), each line is refitted to its cells, and the cells are split into runs along the
    line: a gap splits the run when it is longer than ``bridge_gap``, or when it holds free space
-   (a door opening seen through) or is longer than ``occlusion_gap``. Runs shorter than
-   ``min_length`` are dropped. Segments of one group lie exactly on one line, so the segment map
+   (a door opening seen through) or is longer than ``occlusion_gap``. Pieces must be solid (most
+   cell-steps along them hold a cell) and have free space along one side (a wall face is seen
+   through free space; a line through clutter has none). Runs shorter than ``min_length`` are
+   dropped. Segments of one group lie exactly on one line, so the segment map
    merges them into one Hough point.
 
 :func:`build_map` chains the stages and writes the map YAML and a PNG preview (segments over the
