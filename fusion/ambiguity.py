@@ -103,6 +103,7 @@ class AmbiguityManager:
     _failures: int = 0
     _since_attempt: int = 0
     _hyp_odom: NDArray[np.float64] | None = None
+    _prior: tuple[NDArray, NDArray, NDArray] | None = None  # pose, cov, odometry when tracking
     logger: object | None = None
 
     def __post_init__(self) -> None:
@@ -112,10 +113,13 @@ class AmbiguityManager:
     def start_lost(self, t: float, reason: str) -> None:
         self._go(t, State.LOST, reason)
 
-    def tracking_step(self, t: float, status: str, cov: NDArray) -> None:
+    def tracking_step(self, t: float, status: str, cov: NDArray, pose: NDArray | None = None,
+                      odom: NDArray | None = None) -> None:
         """After a tracking scan: count scans without a usable fix; check the covariance."""
         if self.state is not State.TRACKING:
             return
+        if pose is not None and odom is not None:  # the belief, should tracking be abandoned
+            self._prior = (np.array(pose, float), np.array(cov, float), np.array(odom, float))
         self._without_fix = 0 if status == "accepted" else self._without_fix + 1
         if self._without_fix >= self.config.max_scans_without_fix:
             self._go(t, State.COLLECTING,
@@ -124,11 +128,12 @@ class AmbiguityManager:
         sigma = math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
         limit = self.config.max_position_sigma_fraction * self._line_spacing
         if sigma > limit:
-            self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the spacing "
-                                          f"of parallel lines ({self._line_spacing:.2f} m)")
+            self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
+                                          f"{self._line_spacing:.2f} m between parallel map lines")
 
     # ------------------------------------------------------------------ global mode
-    def collecting_step(self, t: float, odom: NDArray, points: NDArray) -> Decision:
+    def collecting_step(self, t: float, odom: NDArray, points: NDArray,
+                        kinds: tuple[str, ...] = ("wall",)) -> Decision:
         """Accumulate a view; when there are enough, match the set; decide."""
         odom = np.asarray(odom, float)
         if self._views and not self._moved_since_last_view(odom):
@@ -146,7 +151,7 @@ class AmbiguityManager:
         self._go(t, State.RELOCALIZING, f"{len(self._views)} views accumulated")
         pts = self.accumulated_points()
         _, _, lines = observe_lines(pts, self.config.global_match.hough)
-        result = global_match(lines, pts, self.map, self.config.global_match)
+        result = global_match(lines, pts, self.map, self.config.global_match, kinds=kinds)
         self.counts["global_matches"] += 1
         decision = self._decide(t, result, previous)
         decision.result = result
@@ -178,6 +183,9 @@ class AmbiguityManager:
         rivals = [h for h in result.hypotheses[1:] if h.score > top - self.config.decisive_margin]
         if result.ambiguous or rivals:
             tied = [good[0], *rivals]
+            chosen = self._break_tie_with_prior(tied)
+            if chosen is not None:
+                return self._accept(t, chosen, "tie broken by the last tracked pose")
             self.hypotheses = [h.pose for h in tied]
             self._hyp_odom = self._views[-1].odom.copy()
             self.counts["ties"] += 1
@@ -185,18 +193,39 @@ class AmbiguityManager:
                      f"{len(tied)} hypotheses tie (score {top:.2f}): symmetric map, collecting")
             self._log_hypotheses(t, tied)
             return Decision()
-        best = good[0]
+        return self._accept(t, good[0], "")
+
+    def _break_tie_with_prior(self, tied: list) -> object | None:
+        """Of tied hypotheses, the one alone inside the gate of the tracker's belief when it was
+        abandoned (carried by odometry, its covariance grown generously): a symmetric map only
+        fools a robot without memory. None when there is no belief or it doesn't single one out
+        (after a kidnap, the old belief holds none of them)."""
+        if self._prior is None or not self._views:
+            return None
+        pose, cov, odom = self._prior
+        moved = compose(pose, relative(odom, self._views[-1].odom))
+        spread = cov + np.diag([0.5**2, 0.5**2, math.radians(15.0) ** 2])  # odometry since
+        inside = []
+        for h in tied:
+            e = np.asarray(h.pose, float) - moved
+            e[2] = math.remainder(e[2], 2 * math.pi)
+            if e @ np.linalg.solve(spread, e) <= 16.27:  # χ²(3) at 0.999
+                inside.append(h)
+        return inside[0] if len(inside) == 1 else None
+
+    def _accept(self, t: float, best, how: str) -> Decision:
         self._failures = 0
         self.hypotheses = []
         cov = np.array(best.cov, dtype=float)
         floor = np.diag([self.config.reinit_sigma_xy**2] * 2
                         + [math.radians(self.config.reinit_sigma_theta_deg) ** 2])
-        cov = np.maximum(cov, 0.0) + floor
+        cov = 0.5 * (cov + cov.T) + floor
         self._views.clear()
         self._without_fix = 0
         self._log_hypotheses(t, [best])
         self._go(t, State.TRACKING, f"relocalized: score {best.score:.2f}, "
-                                    f"{best.n_lines_explained} lines explained")
+                                    f"{best.n_lines_explained} lines explained"
+                                    + (f" ({how})" if how else ""))
         return Decision(np.asarray(best.pose, float), cov)
 
     def carried_hypotheses(self, odom: NDArray) -> list[NDArray[np.float64]]:
@@ -213,6 +242,8 @@ class AmbiguityManager:
             self._views.clear()
             self._failures = 0
             self._since_attempt = 0
+        if new is State.LOST:
+            self._prior = None  # no belief to break ties with
         self.transitions.append(Transition(t, self.state, new, reason))
         self.counts[f"{self.state.value}->{new.value}"] += 1
         self.state = new

@@ -130,7 +130,8 @@ class Localizer:
             self.stats.seconds["update"] += perf_counter() - t1
             self.stats.partial_rank += fix.rank < 3
             estimate = self._finish(t, outcome.status, fix, outcome, sensor, points)
-        self.manager.tracking_step(t, estimate.status, estimate.cov)
+        self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
+                                   self.tracker.odometry_at(t))
         return estimate
 
     def _global_step(self, t: float, points: NDArray, sensor: str) -> Estimate:
@@ -140,7 +141,8 @@ class Localizer:
         if odom is None:  # no odometry yet: views cannot be related, wait for it
             return self._finish(t, self.manager.state.value, None, None, sensor, points)
         t0 = perf_counter()
-        decision = self.manager.collecting_step(t, odom, points)
+        kinds = self._sensor(sensor).hough.reference_kinds
+        decision = self.manager.collecting_step(t, odom, points, kinds)
         self.stats.seconds["global"] = self.stats.seconds.get("global", 0.0) + perf_counter() - t0
         if decision.reset_pose is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov)

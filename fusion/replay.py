@@ -148,6 +148,7 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
                   "ambiguous": stats.ambiguous, "no_fix": stats.no_fix,
                   "partial_rank": stats.partial_rank, "late": stats.late},
         "statuses": dict(stats.statuses),
+        "ambiguity": localizer.manager.summary(),
         "seconds": {k: round(v, 6) for k, v in result.seconds.items()},
         "time_per_scan_ms": {
             k: round(1e3 * v / n, 4) for k, v in result.seconds.items() if n and k != "total"},

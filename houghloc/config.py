@@ -60,6 +60,9 @@ class HoughConfig(BaseModel):
         0.6, gt=0.0, le=1.0, description="fraction of an observed piece that must lie on segments"
     )
     match_iterations: int = Field(2, ge=1, description="re-match at the corrected pose")
+    nearest_neighbour_only: bool = Field(
+        False, description="the paper's plain rule: take the nearest reference even when "
+        "several fit (for comparison; it locks onto the wrong one of parallel lines)")
     max_outlier_lines: int = Field(
         2, ge=0, description="inconsistent matches that may be dropped when redundancy allows"
     )

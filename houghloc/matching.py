@@ -161,6 +161,9 @@ def _extents_overlap(lines: Lines, refs: References, pose: NDArray, pose_cov: ND
 def _resolve(lines: Lines, candidate: NDArray, d2: NDArray, res: NDArray, flip: NDArray,
              flip_cov: NDArray, config: HoughConfig) -> Matches:
     reasons: list[str] = []
+    if config.nearest_neighbour_only:  # keep only each line's nearest candidate: no ambiguity
+        nearest = np.where(candidate, d2, np.inf).argmin(axis=1)
+        candidate = candidate & (np.arange(candidate.shape[1])[None, :] == nearest[:, None])
     n_cand = candidate.sum(axis=1)
     ambiguous = n_cand >= 2
     for i in np.flatnonzero(ambiguous)[:3]:
