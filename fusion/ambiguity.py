@@ -228,6 +228,36 @@ class AmbiguityManager:
                                     + (f" ({how})" if how else ""))
         return Decision(np.asarray(best.pose, float), cov)
 
+    def landmark_step(self, t: float, odom: NDArray, position: tuple[float, float],
+                      bearing: float, label: str, tolerance: float = math.radians(15.0)
+                      ) -> Decision:
+        """A recognised landmark seen at ``bearing``: tied hypotheses that would see it
+        elsewhere are dropped; when one is left, it is the pose."""
+        hyps = self.carried_hypotheses(odom)
+        if not hyps:
+            return Decision()
+        keep = []
+        for h in hyps:
+            predicted = math.atan2(position[1] - h[1], position[0] - h[0]) - h[2]
+            if abs(math.remainder(predicted - bearing, 2 * math.pi)) <= tolerance:
+                keep.append(h)
+        if len(keep) == len(hyps):
+            return Decision()
+        self.counts["landmark_prunes"] += 1
+        if not keep:  # none fits: the tie was not between the right poses; start over
+            self.hypotheses = []
+            self._go(t, State.COLLECTING, f"{label} fits no hypothesis: collecting again")
+            return Decision()
+        self.hypotheses, self._hyp_odom = keep, np.asarray(odom, float).copy()
+        if len(keep) > 1:
+            return Decision()
+        self._views.clear()
+        self._without_fix = 0
+        self._go(t, State.TRACKING, f"tie broken by {label} at {math.degrees(bearing):.0f}°")
+        self.hypotheses = []
+        cov = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
+        return Decision(keep[0], cov)
+
     def carried_hypotheses(self, odom: NDArray) -> list[NDArray[np.float64]]:
         """The tied hypotheses moved by the odometry since they were found."""
         if not self.hypotheses or self._hyp_odom is None:

@@ -65,7 +65,17 @@ class Truth:
     theta: float
 
 
-Event = Odometry | Scan | PointSet | Truth
+@dataclass(frozen=True, slots=True)
+class Landmark:
+    """A recognised map landmark (e.g. a goal by its colour) seen at ``bearing`` (robot frame)."""
+
+    t: float
+    label: str
+    bearing: float
+    sensor: str = "camera"
+
+
+Event = Odometry | Scan | PointSet | Truth | Landmark
 
 
 @dataclass

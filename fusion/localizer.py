@@ -134,6 +134,17 @@ class Localizer:
                                    self.tracker.odometry_at(t))
         return estimate
 
+    def on_landmark(self, t: float, label: str, bearing: float) -> None:
+        """A recognised landmark (e.g. a goal by its colour) at a bearing: while the map's
+        symmetry leaves several poses, it tells them apart; while tracking it is not used."""
+        position = self.map.landmarks.get(label)
+        odom = self.tracker.odometry_at(t)
+        if position is None or odom is None or self.manager.state is State.TRACKING:
+            return
+        decision = self.manager.landmark_step(t, odom, position, bearing, label)
+        if decision.reset_pose is not None:
+            self.tracker.reset(decision.reset_pose, decision.reset_cov)
+
     def _global_step(self, t: float, points: NDArray, sensor: str) -> Estimate:
         """Strategy (ii): accumulate this view; the manager may find the pose and re-initialise
         the filter; until then the estimate is odometry only, reported with the state."""

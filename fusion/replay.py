@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from tqdm import tqdm
 
 from fusion.evaluation import ATE, LostFraction, Trajectory, nees
-from fusion.events import Event, Odometry, PointSet, ReadStats, Scan, Truth
+from fusion.events import Event, Landmark, Odometry, PointSet, ReadStats, Scan, Truth
 from fusion.io.files import atomic_write_json
 from fusion.io.tum import TumWriter
 from fusion.localizer import Localizer
@@ -76,6 +76,9 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             if isinstance(event, Odometry):
                 localizer.on_odometry(event.t, event.x, event.y, event.theta)
                 seconds["odometry"] += time.perf_counter() - t0
+                continue
+            if isinstance(event, Landmark):
+                localizer.on_landmark(event.t, event.label, event.bearing)
                 continue
             if isinstance(event, Truth):
                 truth_t.append(event.t)

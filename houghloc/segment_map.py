@@ -49,12 +49,20 @@ class _SegmentEntry(BaseModel):
         return v
 
 
+class _LandmarkEntry(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    id: str
+    at: tuple[float, float]
+
+
 class _MapFile(BaseModel):
     model_config = ConfigDict(extra="forbid")
     name: str = "unnamed"
     frame: str = "map"
     units: Literal["m"] = "m"
     segments: list[_SegmentEntry] = Field(min_length=1)
+    # distinguishable point features (e.g. the RoboCup goals' colours); optional
+    landmarks: list[_LandmarkEntry] = Field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -112,6 +120,7 @@ class SegmentMap:
         self._merge_collinear(collinear_angle_tol, collinear_dist_tol)
         self._build_index(index_spacing)
         self.visibility_cell = visibility_cell
+        self.landmarks: dict[str, tuple[float, float]] = {}
         self._visibility_cache: dict[tuple, tuple[NDArray, NDArray, NDArray]] = {}
 
     # ---------------------------------------------------------------- construction
@@ -152,7 +161,9 @@ class SegmentMap:
             if math.dist(a, b) < 1e-6:
                 raise MapError(f"map {source}: segment #{i} (id {ids[i]!r}): 'from' equals 'to'")
         kinds = [s.kind for s in spec.segments]
-        return cls(starts, ends, kinds=kinds, ids=ids, name=spec.name)
+        m = cls(starts, ends, kinds=kinds, ids=ids, name=spec.name)
+        m.landmarks = {lm.id: lm.at for lm in spec.landmarks}
+        return m
 
     def to_dict(self) -> dict:
         segs = [
@@ -160,7 +171,10 @@ class SegmentMap:
              "to": [float(b[0]), float(b[1])]}
             for i, k, a, b in zip(self.ids, self.kinds, self.starts, self.ends, strict=True)
         ]
-        return {"name": self.name, "frame": "map", "units": "m", "segments": segs}
+        out = {"name": self.name, "frame": "map", "units": "m", "segments": segs}
+        if self.landmarks:
+            out["landmarks"] = [{"id": k, "at": list(v)} for k, v in self.landmarks.items()]
+        return out
 
     def to_yaml(self, path: str | Path) -> None:
         Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False, width=120))

@@ -161,3 +161,40 @@ def test_symmetric_field_reports_both_mirror_hypotheses():
     assert abs(math.remainder(a[2] - b[2], 2 * math.pi)) == pytest.approx(math.pi, abs=0.1)
     assert np.allclose(a[:2], -b[:2], atol=0.2)  # mirrored through the centre of the field
     assert "accepted" not in statuses
+
+
+def test_goal_colours_break_the_mirror_tie():
+    """The same start with the goals' colours seen by a camera: once a goal comes into view the
+    mirror hypothesis predicts it behind the robot, is dropped, and tracking starts at the true
+    pose."""
+    from fusion.io import merge_by_time
+    from fusion.sim import landmark_sightings
+
+    run = simulate(scenario_preset("robocup-laser", seed=2, duration=20))
+    loc = Localizer(run.map, None, initial_pose=None)
+
+    class WithGoals:  # the run's events with the goal sightings merged in
+        def __getattr__(self, name):
+            return getattr(run, name)
+
+        def events(self):
+            return merge_by_time([run.events(), landmark_sightings(run, seed=2)])
+
+    from fusion.events import Landmark
+
+    times, errors = [], []
+    for ev in WithGoals().events():
+        if isinstance(ev, Landmark):
+            loc.on_landmark(ev.t, ev.label, ev.bearing)
+        elif isinstance(ev, Odometry):
+            loc.on_odometry(ev.t, ev.x, ev.y, ev.theta)
+        elif isinstance(ev, Scan):
+            est = loc.on_scan(ev.t, ev.ranges, ev.angles)
+            truth = interpolate_poses(np.array([ev.t]), run.odom_t, run.odom_truth)[0]
+            times.append(ev.t)
+            errors.append((math.hypot(*(est.pose[:2] - truth[:2])),
+                           abs(math.degrees(math.remainder(est.pose[2] - truth[2], 2 * math.pi)))))
+    reasons = [tr.reason for tr in loc.manager.transitions]
+    assert any("tie" in r for r in reasons) and any("goal_" in r for r in reasons), reasons
+    settle = settled_after(np.array(times), np.array(errors), times[0])
+    assert settle is not None and settle < 15.0

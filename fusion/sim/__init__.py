@@ -31,6 +31,7 @@ from fusion.sim.config import (
     ScenarioConfig,
 )
 from fusion.sim.files import load_scenario, read_camera_points, write_run
+from fusion.sim.landmarks import landmark_sightings
 from fusion.sim.laser import (
     CLUTTER,
     MOVING_OBSTACLE,
@@ -67,6 +68,7 @@ __all__ = [
     "SimulationError",
     "beam_angles",
     "camera_points",
+    "landmark_sightings",
     "laser_scan",
     "load_scenario",
     "make_clutter",
