@@ -10,8 +10,15 @@ import pytest
 from fusion import Localizer, LocalizerConfig
 from fusion.ambiguity import State
 from fusion.events import Odometry, PointSet, Scan
-from fusion.sim import CameraConfig, Kidnap, RouteConfig, SimulationError, camera_points
-from fusion.sim import scenario_preset, simulate
+from fusion.sim import (
+    CameraConfig,
+    Kidnap,
+    RouteConfig,
+    SimulationError,
+    camera_points,
+    scenario_preset,
+    simulate,
+)
 from fusion.sim.routes import OFFICE_LOOP
 from fusion.sim.run import interpolate_poses
 from houghloc import localize_scan
