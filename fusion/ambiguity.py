@@ -114,8 +114,9 @@ class AmbiguityManager:
         self._go(t, State.LOST, reason)
 
     def tracking_step(self, t: float, status: str, cov: NDArray, pose: NDArray | None = None,
-                      odom: NDArray | None = None) -> None:
-        """After a tracking scan: count scans without a usable fix; check the covariance."""
+                      odom: NDArray | None = None, spacing: float | None = None) -> None:
+        """After a tracking scan: count scans without a usable fix; check the covariance against
+        ``spacing``, the closest parallel lines in view (the map's closest pair if not given)."""
         if self.state is not State.TRACKING:
             return
         if pose is not None and odom is not None:  # the belief, should tracking be abandoned
@@ -125,11 +126,11 @@ class AmbiguityManager:
             self._go(t, State.COLLECTING,
                      f"{self._without_fix} scans without a usable fix (last: {status})")
             return
+        spacing = self._line_spacing if spacing is None else spacing
         sigma = math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
-        limit = self.config.max_position_sigma_fraction * self._line_spacing
-        if sigma > limit:
+        if sigma > self.config.max_position_sigma_fraction * spacing:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
-                                          f"{self._line_spacing:.2f} m between parallel map lines")
+                                          f"{spacing:.2f} m between parallel lines in view")
 
     # ------------------------------------------------------------------ global mode
     def collecting_step(self, t: float, odom: NDArray, points: NDArray,
@@ -290,6 +291,18 @@ class AmbiguityManager:
                 "counts": dict(self.counts),
                 "log": [{"t": round(tr.t, 3), "from": tr.old.value, "to": tr.new.value,
                          "reason": tr.reason} for tr in self.transitions[-50:]]}
+
+
+def visible_parallel_spacing(theta: NDArray, rho: NDArray,
+                             angle_tol: float = math.radians(2.0)) -> float:
+    """The smallest ρ difference between references seen at the same robot-frame θ: the lines
+    that nearest-neighbour matching can confuse from here (inf if there are none)."""
+    if len(theta) < 2:
+        return math.inf
+    dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % (2 * np.pi) - np.pi)
+    gap = np.abs(rho[:, None] - rho[None, :])
+    close = (dth < angle_tol) & ~np.eye(len(theta), dtype=bool)
+    return float(gap[close].min()) if close.any() else math.inf
 
 
 def _closest_parallel_spacing(m: SegmentMap, angle_tol: float = math.radians(2.0)) -> float:

@@ -15,7 +15,7 @@ from time import perf_counter
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.ambiguity import AmbiguityManager, State
+from fusion.ambiguity import AmbiguityManager, State, visible_parallel_spacing
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
 from fusion.tracker import PoseTracker
@@ -130,8 +130,10 @@ class Localizer:
             self.stats.seconds["update"] += perf_counter() - t1
             self.stats.partial_rank += fix.rank < 3
             estimate = self._finish(t, outcome.status, fix, outcome, sensor, points)
+        refs = fix.references
+        spacing = visible_parallel_spacing(refs.theta, refs.rho) if refs is not None else None
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
-                                   self.tracker.odometry_at(t))
+                                   self.tracker.odometry_at(t), spacing)
         return estimate
 
     def on_landmark(self, t: float, label: str, bearing: float) -> None:
