@@ -129,13 +129,14 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
     max_band = config.refine_max_band or config.rho_step
     band = max_band  # first pass: one cell (or the widest band) either side of the peak
     theta, rho = np.asarray(theta0, float), np.asarray(rho0, float)
-    mask = np.zeros((len(points), len(theta)), dtype=bool)
-    for _ in range(config.refine_iterations - 1):
-        mask = _inliers(points, theta, rho, band)
-        theta, rho, var, n, _, _ = _tls(monomials, mask)
-        band = np.clip(
-            config.refine_band_sigmas * np.sqrt(var), config.refine_min_band, config.rho_step
-        )
+    mask = _inliers(points, theta, rho, band)
+    n = mask.sum(axis=0)
+    for it in range(config.refine_iterations - 1):  # re-centre the band on a first fit
+        if it:
+            mask = _inliers(points, theta, rho, band)
+        theta, rho, mean_sq, n, _, _ = _tls(monomials, mask)
+        band = np.clip(config.refine_band_sigmas * np.sqrt(mean_sq), config.refine_min_band,
+                       max_band)
     keep = _distinct(mask, n)
     theta, rho, band = theta[keep], rho[keep], np.broadcast_to(band, keep.shape)[keep]
     # Each point now belongs to the nearest line whose band holds it: a point near a corner

@@ -122,17 +122,18 @@ def test_lines_at_the_theta_wrap_are_matched() -> None:
        dx=st.floats(-0.1, 0.1), dy=st.floats(-0.1, 0.1), dth=st.floats(-0.05, 0.05))
 def test_noise_free_scans_give_the_pose_far_below_the_grid(robocup, x, y, theta, dx, dy,
                                                           dth) -> None:
-    """With exact ranges the correction undoes the guess's error to well under a millimetre and
-    a hundredth of a degree of the 10 cm × 3° grid (the residue: a few corner points of walls too
-    short to be lines, like a goal's sides, joining the fit of the wall behind)."""
+    """With exact ranges the correction undoes the guess's error to a few millimetres and
+    hundredths of a degree, thirty times finer than the 10 cm × 3° grid (the residue: corner
+    points of walls too short to be lines, like a goal's sides, joining the fit of the wall
+    behind)."""
     true = np.array([x, y, theta])
     scan = laser_scan(robocup, true, np.random.default_rng(0),
                       LaserConfig(sigma=0.0, dropout_prob=0.0, spurious_prob=0.0))
     points = ranges_to_points(scan.ranges, scan.angles, 10.0)
     c = localize_scan(points, robocup, true + [dx, dy, dth])
     if c.ok:
-        assert math.hypot(*(c.pose[:2] - true[:2])) < 1e-3
-        assert abs(wrap_angle(c.pose[2] - true[2])) < 5e-4
+        assert math.hypot(*(c.pose[:2] - true[:2])) < 3e-3
+        assert abs(wrap_angle(c.pose[2] - true[2])) < 1e-3
     else:  # a view with too little structure (e.g. one wall) says so
         assert c.reason
 
