@@ -294,14 +294,15 @@ class AmbiguityManager:
 
 
 def visible_parallel_spacing(theta: NDArray, rho: NDArray,
-                             angle_tol: float = math.radians(2.0)) -> float:
+                             angle_tol: float = math.radians(2.0), min_gap: float = 0.05) -> float:
     """The smallest ρ difference between references seen at the same robot-frame θ: the lines
     that nearest-neighbour matching can confuse from here (inf if there are none)."""
     if len(theta) < 2:
         return math.inf
     dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % (2 * np.pi) - np.pi)
     gap = np.abs(rho[:, None] - rho[None, :])
-    close = (dth < angle_tol) & ~np.eye(len(theta), dtype=bool)
+    # pieces of one wall a few centimetres apart (a map built from scans) are one wall
+    close = (dth < angle_tol) & (gap > min_gap)
     return float(gap[close].min()) if close.any() else math.inf
 
 

@@ -154,9 +154,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     logger = _make_logger(args, args.out / "run.rrd")
     loc = Localizer.from_config(args.config, segment_map, args.initial_pose, logger)
     result = replay(events, loc, trajectory_path=args.out / "trajectory.tum",
-                    progress=False if args.no_progress else None, description=args.log.name)
+                    progress=False if args.no_progress else None, description=args.log.name,
+                    keep=reference is not None)
     doc = metrics_document(result, loc, read_stats, reference,
-                           {"map": str(args.map), "log": str(args.log),
+                           {"map": str(args.map), "log_path": str(args.log),
                             "ground_truth": str(gt_path) if gt_path else None})
     write_metrics(args.out / "metrics.json", doc)
     _serve_until_interrupted(args, logger)
@@ -252,8 +253,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
         print(f"relations: {d.get('count')} used, {d.get('missing')} without a pose")
         print(f"  translational  mean {d.get('translation_mean_m', float('nan')):.4f} m   "
               f"std {d.get('translation_std_m', float('nan')):.4f} m")
-        print(f"  rotational     mean {d.get('rotation_mean_rad', float('nan')):.4f} rad "
-              f"std {d.get('rotation_std_rad', float('nan')):.4f} rad")
+        mean, std = (math.radians(d.get(k, float("nan"))) for k in
+                     ("rotation_mean_deg", "rotation_std_deg"))
+        print(f"  rotational     mean {mean:.4f} rad   std {std:.4f} rad")
     return 0
 
 

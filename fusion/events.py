@@ -28,7 +28,9 @@ class Scan:
 
     ``max_range``: returns at or beyond it mean "no return". ``reference``: the pose a corrected
     log attached to this scan (map frame), for evaluation only — never an input to the filter.
-    ``line``: the record's line number in its file, for messages.
+    ``line``: the record's line number in its file, for messages. ``stamp``: the record's own
+    timestamp when the reader had to replace ``t`` by an in-order time (a log whose records are in
+    order but some stamps are not); outputs are written at it, so they line up with references.
     """
 
     t: float
@@ -38,6 +40,7 @@ class Scan:
     sensor: str = "laser"
     reference: tuple[float, float, float] | None = None
     line: int | None = None
+    stamp: float | None = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -38,6 +38,7 @@ class ReplayResult:
     seconds: dict[str, float] = field(default_factory=dict)
     events: int = 0
     interrupted: bool = False
+    scans: int = 0
 
     @property
     def trajectory(self) -> Trajectory:
@@ -46,15 +47,17 @@ class ReplayResult:
     @property
     def scans_per_second(self) -> float:
         total = self.seconds.get("total", 0.0)
-        return len(self.t) / total if total > 0 else float("nan")
+        return self.scans / total if total > 0 else float("nan")
 
 
 def replay(events: Iterable[Event], localizer: Localizer, *,
            trajectory_path: str | Path | None = None, progress: bool | None = None,
-           description: str = "replay") -> ReplayResult:
+           description: str = "replay", keep: bool = True) -> ReplayResult:
     """Feed every event to the localizer in arrival order; collect the estimate at each scan.
 
-    ``progress``: a tqdm bar in scans (None: only when writing to a terminal).
+    ``progress``: a tqdm bar in scans (None: only when writing to a terminal). ``keep=False``
+    keeps no per-scan results in memory (they are in the trajectory file): memory then does not
+    grow with the log, and only counts and timings are returned.
     """
     t_out: list[float] = []
     poses: list[NDArray] = []
@@ -67,6 +70,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     bar = tqdm(desc=description, unit="scan", disable=(None if progress is None else not progress),
                mininterval=0.5, dynamic_ncols=True)
     n_events = 0
+    n_scans = 0
     interrupted = False
     started = time.perf_counter()
     try:
@@ -92,12 +96,16 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             else:
                 continue
             seconds["scans"] += time.perf_counter() - t0
-            t_out.append(est.t)
-            poses.append(est.pose)
-            covs.append(est.cov)
-            statuses.append(est.status)
+            stamp = getattr(event, "stamp", None)  # a record's own (out-of-order) timestamp
+            t_est = est.t if stamp is None else stamp
+            n_scans += 1
+            if keep:
+                t_out.append(t_est)
+                poses.append(est.pose)
+                covs.append(est.cov)
+                statuses.append(est.status)
             if writer is not None:
-                writer.write(est.t, *est.pose)
+                writer.write(t_est, *est.pose)
             bar.update()
     except KeyboardInterrupt:
         interrupted = True
@@ -110,7 +118,8 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     seconds.update(localizer.stats.seconds)
     return ReplayResult(
         np.asarray(t_out), np.asarray(poses).reshape(-1, 3), np.asarray(covs).reshape(-1, 3, 3),
-        statuses, Trajectory(truth_t, truth) if truth_t else None, seconds, n_events, interrupted)
+        statuses, Trajectory(truth_t, truth) if truth_t else None, seconds, n_events, interrupted,
+        n_scans)
 
 
 def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) -> dict[str, Any]:
@@ -135,7 +144,7 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
     """Everything ``metrics.json`` reports: counts, time per stage, accuracy when known."""
     stats = localizer.stats
     counts = localizer.tracker.counts
-    n = len(result.t)
+    n = result.scans
     doc: dict[str, Any] = {
         "scans": n,
         "events": result.events,

@@ -60,6 +60,11 @@ class HoughConfig(BaseModel):
         0.6, gt=0.0, le=1.0, description="fraction of an observed piece that must lie on segments"
     )
     match_iterations: int = Field(2, ge=1, description="re-match at the corrected pose")
+    decisive_d2_margin: float | None = Field(
+        None, gt=0.0, description="a line whose best reference beats the others' Mahalanobis d² "
+        "by this much takes it (real maps model one wall by near-duplicate pieces), and lines "
+        "still ambiguous are left out of a full fix without flagging it; None: any second "
+        "candidate in the gate is ambiguous and flags the fix")
     nearest_neighbour_only: bool = Field(
         False, description="the paper's plain rule: take the nearest reference even when "
         "several fit (for comparison; it locks onto the wrong one of parallel lines)")

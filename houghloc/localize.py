@@ -170,6 +170,12 @@ def localize_scan(
         offset, matches, disp, limit = base + redo.delta, trial, redo, limit - 1
         pose = _apply(guess, offset)
     reasons = [r for r in matches.reasons if not r.startswith("dropped")]
+    # Lines with two candidate references were left out, not guessed. With a decisive margin set
+    # (real maps model one wall by pieces a few degrees apart, and a far wall then fits both), they
+    # do not make a full fix from the unique matches doubtful: they stay in the reason as a note.
+    lenient = config.decisive_d2_margin is not None and disp.rank == 3
+    notes = reasons if lenient else []
+    reasons = [] if lenient else reasons
     if disp.dof > 0 and disp.chi2 > gate_threshold(config.gate_probability, disp.dof):
         reasons.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
     # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
@@ -183,8 +189,9 @@ def localize_scan(
                        + ", ".join(_direction_name(v) for v in disp.unobservable.T))
     return ScanCorrection(
         guess, pose, _wrapped(offset), disp.cov, disp.information, disp.rank, disp.observable,
-        disp.unobservable, matches, bool(len(matches.ambiguous_lines)) or len(reasons) > (
-            disp.rank < 3), "; ".join(reasons), matched_map_lines=refs.line[matches.ref],
+        disp.unobservable, matches, bool(len(matches.ambiguous_lines) and not lenient) or len(
+            reasons) > (disp.rank < 3), "; ".join(reasons + notes),
+        matched_map_lines=refs.line[matches.ref],
         references=refs, **{k: v for k, v in stages.items() if k != "references"})
 
 

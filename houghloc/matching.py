@@ -165,6 +165,19 @@ def _resolve(lines: Lines, candidate: NDArray, d2: NDArray, res: NDArray, flip: 
         nearest = np.where(candidate, d2, np.inf).argmin(axis=1)
         candidate = candidate & (np.arange(candidate.shape[1])[None, :] == nearest[:, None])
     n_cand = candidate.sum(axis=1)
+    if config.decisive_d2_margin is not None and (n_cand >= 2).any():
+        # A line whose best candidate beats every other by a clear likelihood ratio (the d²
+        # already carry the pose's uncertainty) is not ambiguous: it keeps only that candidate.
+        d2c = np.where(candidate, d2, np.inf)
+        two = np.partition(d2c, 1, axis=1)[:, :2]
+        gap = np.where(n_cand >= 2, two[:, 1] - np.where(n_cand >= 2, two[:, 0], 0.0), 0.0)
+        clear = gap >= config.decisive_d2_margin
+        if clear.any():
+            best = d2c.argmin(axis=1)
+            candidate = candidate.copy()
+            candidate[clear] = False
+            candidate[np.flatnonzero(clear), best[clear]] = True
+            n_cand = candidate.sum(axis=1)
     ambiguous = n_cand >= 2
     for i in np.flatnonzero(ambiguous)[:3]:
         reasons.append(f"line θ={np.degrees(lines.theta[i]):.1f}° ρ={lines.rho[i]:.2f} m fits "

@@ -1,0 +1,64 @@
+"""Localization on short slices of the real logs, against the GMapping reference poses.
+
+Skipped when ../shared/data is missing. The figures asserted are what the scenario configs
+(configs/intel-laser.yaml, configs/fr079-laser.yaml) reach on these slices, with a margin; the whole
+logs are in ``python -m benchmarks.bench_real``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.bench_real import DATA, datasets, run, score
+from fusion.io.intel_mat import in_order_times
+
+pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"real datasets not in {DATA}")
+
+DATASETS = {ds.name: ds for ds in datasets()} if DATA.is_dir() else {}
+
+
+def _need(name: str):
+    ds = DATASETS.get(name)
+    if ds is None or not ds.log.exists() or (ds.reference and not ds.reference.exists()):
+        pytest.skip(f"{name} data missing")
+    return ds
+
+
+def test_intel_rows_are_fed_in_order_with_their_own_stamps_kept() -> None:
+    ds = _need("intel")
+    from fusion.io import read_intel_mat
+
+    mat = read_intel_mat(ds.log)
+    fixed = in_order_times(mat.t)
+    assert (np.diff(fixed) >= 0).all()
+    changed = fixed != mat.t
+    assert 0 < changed.sum() < 0.1 * len(mat.t)  # a few late stamps, not a re-timing
+    scans = [e for e in mat if type(e).__name__ == "Scan"]
+    stamps = np.array([s.t if s.stamp is None else s.stamp for s in scans])
+    np.testing.assert_array_equal(stamps, mat.t)  # outputs line up with references/relations
+
+
+def test_intel_first_600_scans_track_the_reference() -> None:
+    # measured: ATE 5.0 cm RMSE, 9.8 cm max over 28 reference poses, relations 4.2 cm (47), 98 %
+    # of the fixes accepted, never out of tracking
+    result = score(run(_need("intel"), limit=600))
+    h = result["houghloc"]
+    assert h["matched"] >= 20
+    assert h["lost"] == 0.0
+    assert h["ate_rmse_m"] < 0.08 and h["ate_max_m"] < 0.15
+    assert h["relations"]["count"] >= 40 and h["relations"]["translation_mean_m"] < 0.074
+    assert result["statuses"].get("accepted", 0) >= 0.9 * result["scans"]
+    assert "collecting" not in result["statuses"] and "lost" not in result["statuses"]
+
+
+def test_fr079_first_300_scans_stay_tracking() -> None:
+    # measured: ATE 15 cm RMSE, 45 cm max, 14 % of the poses beyond 0.3 m / 5° (the reference's
+    # threshold) — not yet the target; a guard that tracking holds and beats the odometry
+    result = score(run(_need("fr079"), limit=300))
+    h, odom = result["houghloc"], result["odometry"]
+    assert h["matched"] >= 250
+    assert h["lost"] <= 0.25
+    assert h["ate_rmse_m"] < 0.25 and h["ate_max_m"] < 0.7
+    assert "collecting" not in result["statuses"] and "lost" not in result["statuses"]
+    assert odom["ate_rmse_m"] > 2 * h["ate_rmse_m"]  # better than the odometry's best alignment
