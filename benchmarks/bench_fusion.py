@@ -25,25 +25,21 @@ import sys
 import tempfile
 import textwrap
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from benchmarks.common import REPO
-from fusion import Localizer
 from fusion.config import LocalizerConfig
 from fusion.evaluation import (
     ATE,
     ATEResult,
-    LostFraction,
     Trajectory,
     chi2_band,
-    nees,
     summary_table,
 )
-from fusion.replay import ReplayResult, replay
+from fusion.experiment import localize_simulated
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
 from fusion.tracker import PoseTracker
 
@@ -65,39 +61,7 @@ def simulated(scenario: str, seed: int, duration: float, **camera: object) -> Si
     return simulate(cfg)
 
 
-@dataclass
-class Localized:
-    run: SimRun
-    result: ReplayResult
-    localizer: Localizer
-    ate: ATEResult
-
-    @property
-    def position_cm(self) -> float:
-        return 100 * self.ate.position["rmse"]
-
-    @property
-    def heading_deg(self) -> float:
-        return self.ate.heading_deg["rmse"]
-
-    @property
-    def lost(self) -> int:
-        return LostFraction().from_ate(self.ate).count
-
-    def nees_per_scan(self) -> NDArray[np.float64]:
-        ref = self.run.truth[self.ate.association.ref_index]
-        errors = np.column_stack((self.result.poses[:, :2] - ref[:, :2], self.ate.heading_errors))
-        return nees(errors, self.result.covs).values
-
-
-def localize(run: SimRun, config: LocalizerConfig,
-             tracker: PoseTracker | None = None) -> Localized:
-    loc = Localizer(run.map, config, initial_pose=run.odom_truth[0])
-    if tracker is not None:
-        loc.tracker = tracker
-    result = replay(run.events(), loc, progress=False)
-    ate = ATE().compute(result.trajectory, Trajectory(run.truth_t, run.truth))
-    return Localized(run, result, loc, ate)
+localize = localize_simulated
 
 
 def odometry_only(run: SimRun) -> ATEResult:

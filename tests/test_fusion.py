@@ -13,17 +13,15 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.typing import ArrayLike, NDArray
 
-from fusion import Localizer
 from fusion.config import LocalizerConfig
-from fusion.evaluation import ATE, ATEResult, LostFraction, Trajectory, chi2_band, nees
-from fusion.replay import ReplayResult, replay
+from fusion.evaluation import ATE, ATEResult, Trajectory, chi2_band
+from fusion.experiment import localize_simulated
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
 from fusion.tracker import PoseTracker
 
@@ -42,44 +40,7 @@ def config_for(scenario: str, **filter_overrides: object) -> LocalizerConfig:
     return config.model_copy(update={"filter": config.filter.model_copy(update=filter_overrides)})
 
 
-@dataclass
-class Localized:
-    """One simulated run localized from its known start pose, with its errors."""
-
-    run: SimRun
-    result: ReplayResult
-    localizer: Localizer
-    ate: ATEResult
-
-    @property
-    def position_rmse(self) -> float:
-        return self.ate.position["rmse"]
-
-    @property
-    def heading_rmse_deg(self) -> float:
-        return self.ate.heading_deg["rmse"]
-
-    @property
-    def lost(self) -> int:
-        return LostFraction().from_ate(self.ate).count
-
-    def nees_per_scan(self) -> NDArray[np.float64]:
-        """eᵀP⁻¹e of every output pose against the truth at its time."""
-        ref = self.run.truth[self.ate.association.ref_index]
-        errors = np.column_stack((self.result.poses[:, :2] - ref[:, :2], self.ate.heading_errors))
-        return nees(errors, self.result.covs).values
-
-
-def localize(run: SimRun, config: LocalizerConfig,
-             tracker: PoseTracker | None = None) -> Localized:
-    loc = Localizer(run.map, config, initial_pose=run.odom_truth[0])
-    if tracker is not None:
-        loc.tracker = tracker
-    result = replay(run.events(), loc, progress=False)
-    ate = ATE().compute(result.trajectory, Trajectory(run.truth_t, run.truth))
-    # Every output pose must be scored: an unmatched one would hide from the error figures.
-    assert ate.association.matched == len(result.t) > 0
-    return Localized(run, result, loc, ate)
+localize = localize_simulated
 
 
 def simulated(scenario: str, seed: int, duration: float, **camera: object) -> SimRun:
