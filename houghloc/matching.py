@@ -7,7 +7,8 @@ observed piece does not overlap the segment's extent, are not candidates. A line
 candidates, or two incompatible lines claiming one reference, is ambiguous: reported, not guessed.
 
 Hough-domain Jacobian of a reference seen from pose (x, y, θ), with β its world normal angle:
-    θ_r = β − θ,   ρ_r = r − (x cos β + y sin β)   ⇒   J = [[0, 0, −1], [−cos β, −sin β, 0]].
+    θ_r = β − θ,   ρ_r = r − (x cos β + y sin β)   ⇒   J = [[0, 0, −1], [−cos β, −sin β, 0]];
+the 2×2 blocks J P Jᵀ and the Mahalanobis distances are written out elementwise below.
 """
 
 from __future__ import annotations
@@ -49,26 +50,6 @@ class Matches:
         keep = np.arange(len(self.line)) != index
         return Matches(self.line[keep], self.ref[keep], self.residual[keep], self.cov[keep],
                        self.d2[keep], self.ambiguous_lines, (*self.reasons, reason))
-
-
-def hough_jacobians(beta: NDArray[np.float64]) -> NDArray[np.float64]:
-    """J (L×2×3) of (θ_r, ρ_r) with respect to the pose, for world normal angles β."""
-    jac = np.zeros((len(beta), 2, 3))
-    jac[:, 0, 2] = -1.0
-    jac[:, 1, 0] = -np.cos(beta)
-    jac[:, 1, 1] = -np.sin(beta)
-    return jac
-
-
-def inv2(m: NDArray) -> NDArray:
-    """Inverses of a stack of 2×2 matrices (closed form: no LAPACK call per matrix)."""
-    inv = np.empty_like(m)
-    det = m[..., 0, 0] * m[..., 1, 1] - m[..., 0, 1] * m[..., 1, 0]
-    inv[..., 0, 0] = m[..., 1, 1] / det
-    inv[..., 1, 1] = m[..., 0, 0] / det
-    inv[..., 0, 1] = -m[..., 0, 1] / det
-    inv[..., 1, 0] = -m[..., 1, 0] / det
-    return inv
 
 
 _GATES: dict[float, float] = {}
