@@ -137,7 +137,7 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
         theta, rho, mean_sq, n, _, _ = _tls(monomials, mask)
         band = np.clip(config.refine_band_sigmas * np.sqrt(mean_sq), config.refine_min_band,
                        max_band)
-    keep = _distinct(mask, n)
+    keep = _distinct(mask, n, theta, rho, config)
     theta, rho, band = theta[keep], rho[keep], np.broadcast_to(band, keep.shape)[keep]
     # Each point now belongs to the nearest line whose band holds it: a point near a corner
     # biases only the wall it is on, and twin peaks cannot share their points.
@@ -184,16 +184,21 @@ def _inliers(points: NDArray, theta: NDArray, rho: NDArray, band: NDArray | floa
     return np.abs(points @ np.vstack((np.cos(theta), np.sin(theta))) - rho) <= band
 
 
-def _distinct(mask: NDArray[np.bool_], n: NDArray) -> NDArray[np.bool_]:
-    """Drop peaks that found the same points as a stronger one (plateaus, a noisy line's spread
-    of peaks, the θ ↔ θ+π twins of a line through the sensor): more than half of the smaller
-    inlier set shared means one line. Lines meeting at a corner share a few points only."""
+def _distinct(mask: NDArray[np.bool_], n: NDArray, theta: NDArray, rho: NDArray,
+              config: HoughConfig) -> NDArray[np.bool_]:
+    """Drop peaks that are one line with a stronger peak: they found mostly the same points
+    (plateaus, a noisy line's spread of peaks, the θ ↔ θ+π twins of a line through the sensor),
+    or they refined to within half a cell of it (a short line near the sensor, whose peaks at
+    neighbouring θ catch different parts of it). Lines meeting at a corner share a few points
+    only and differ by far more than half a cell."""
     m = mask.astype(np.float32)
     shared = m.T @ m  # K×K counts of common inliers
     k = len(n)
     idx = np.arange(k)
     same = shared > 0.5 * np.minimum(n[:, None], n[None, :])
+    dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % TWO_PI - np.pi)
+    same |= (dth < 0.5 * config.theta_step) & (np.abs(rho[:, None] - rho[None, :])
+                                               < 0.5 * config.rho_step)
     stronger = (n[None, :] > n[:, None]) | (
-        (n[None, :] == n[:, None]) & (idx[None, :] < idx[:, None])
-    )
+        (n[None, :] == n[:, None]) & (idx[None, :] < idx[:, None]))
     return (n > 0) & ~(same & stronger).any(axis=1)

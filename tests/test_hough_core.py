@@ -49,10 +49,11 @@ def test_a_line_is_found_and_refined_exactly(theta, rho, s0, length) -> None:
     grid, acc, lines = observe_lines(pts, CFG)
     assert len(lines) == 1
     # the grid peak is as close to the truth as the grid can tell (cyclic in θ): a short piece
-    # fills one ρ cell over a range of θ as wide as atan(δρ / length) ...
+    # fills one or two ρ cells over a range of θ as wide as asin(2δρ / length) ...
     peaks = find_peaks(acc, len(pts), CFG)
     th0, _rh0 = grid.cell_center(peaks.i_theta[0], peaks.i_rho[0])
-    assert angle_diff(th0, theta) <= 1.5 * grid.theta_step + math.atan(grid.rho_step / length)
+    spread = math.asin(min(1.0, 2 * grid.rho_step / length))
+    assert angle_diff(th0, theta) <= 1.5 * grid.theta_step + spread
     # ... and the refinement recovers the line itself, far below the grid
     assert angle_diff(lines.theta[0], theta) < 1e-7
     assert abs(lines.rho[0] - rho) < 1e-7
