@@ -152,6 +152,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise CliError("--initial-pose must be three finite numbers")
     args.out.mkdir(parents=True, exist_ok=True)
     logger = _make_logger(args, args.out / "run.rrd")
+    if reference is not None:  # the recording shows the ground truth beside the estimate
+        for t, pose in zip(reference.t, reference.poses, strict=True):
+            logger.log_truth(float(t), pose)
     loc = Localizer.from_config(args.config, segment_map, args.initial_pose, logger)
     result = replay(events, loc, trajectory_path=args.out / "trajectory.tum",
                     progress=False if args.no_progress else None, description=args.log.name,

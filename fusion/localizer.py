@@ -67,8 +67,10 @@ class Localizer:
         self.stats = LocalizerStats()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
         self.logger.log_map(map)
+        self._start_reason = "initial pose given"
         if initial_pose is None:
             self.manager.start_lost(0.0, "no initial pose: global localization")
+            self._start_reason = "no initial pose: global localization"
 
     @classmethod
     def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,
@@ -106,6 +108,8 @@ class Localizer:
            since), gated by its normalised innovation; an ambiguous one is not used.
         """
         cfg = self._sensor(sensor)
+        if self.stats.scans == 0:  # the recording starts with the state and why
+            self.logger.log_state(t, self.manager.state.value, self._start_reason)
         self.stats.scans += 1
         points = _to_base(np.asarray(points, dtype=float).reshape(-1, 2), cfg)
         if self.manager.state is not State.TRACKING:

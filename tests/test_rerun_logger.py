@@ -250,3 +250,27 @@ def test_points_off_every_line_are_grey(tmp_path: Path, robocup: SegmentMap,
     assert len(colours) == len(scan)
     assert (colours[-len(clutter):] == grey).mean() > 0.9
     assert (colours[: len(points)] != grey).mean() > 0.75  # corners and short pieces: grey
+
+
+def test_a_cli_run_records_every_stage_of_every_scan(tmp_path: Path) -> None:
+    """`houghloc run` on a simulated log (a laser among moving robots): the .rrd holds every
+    stage, the ground truth and the manager's state; every scan is on the `scan` timeline, as
+    many as the trajectory has lines."""
+    from fusion.cli import main
+    from fusion.sim import scenario_preset, simulate, write_run
+
+    run = simulate(scenario_preset("robocup-laser", seed=4, duration=6.0))
+    write_run(run, tmp_path / "sim")
+    out = tmp_path / "out"
+    start = [str(v) for v in run.odom_truth[0]]
+    code = main(["run", "--map", str(tmp_path / "sim" / "map.yaml"), "--log",
+                 str(tmp_path / "sim"), "--out", str(out), "--no-progress",
+                 "--initial-pose", *start])
+    assert code == 0
+    entities = chunks_by_entity(out / "run.rrd")
+    for name in ("world/map/walls", "world/map/lines", "world/scan/points", "world/robot/estimate",
+                 "world/path/truth/0", "hough/accumulator", "hough/matches", "metrics/nis",
+                 "metrics/error/position", "log/state"):
+        assert any(e == name or e.startswith(name) for e in entities), name
+    n_scans = len((out / "trajectory.tum").read_text().splitlines())
+    assert scan_indices(entities["world/scan/points"]) == list(range(n_scans))
