@@ -143,8 +143,10 @@ class AmbiguityManager:
         while len(self._views) > self.config.max_views:
             self._views.popleft()
         self._since_attempt += 1
-        # after failures, wait longer between attempts (a global match costs tens of scans)
-        wait = self.config.retry_every * 2 ** min(self._failures, 4) if self._failures else 0
+        # retry every few views; once lost (repeated failures) back off: a global match costs
+        # tens of scans, and the same views rarely give a different answer
+        backoff = max(0, self._failures - self.config.failures_until_lost + 1)
+        wait = self.config.retry_every * 2 ** min(backoff, 4) if self._failures else 0
         if len(self._views) < self.config.min_views or self._since_attempt < wait:
             return Decision()
         self._since_attempt = 0
