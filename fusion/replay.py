@@ -39,6 +39,7 @@ class ReplayResult:
     events: int = 0
     interrupted: bool = False
     scans: int = 0
+    span: tuple[float | None, float | None] = (None, None)  # first and last scan time
 
     @property
     def trajectory(self) -> Trajectory:
@@ -71,6 +72,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
                mininterval=0.5, dynamic_ncols=True)
     n_events = 0
     n_scans = 0
+    first_t = last_t = None
     interrupted = False
     started = time.perf_counter()
     try:
@@ -99,6 +101,8 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             stamp = getattr(event, "stamp", None)  # a record's own (out-of-order) timestamp
             t_est = est.t if stamp is None else stamp
             n_scans += 1
+            first_t = t_est if first_t is None else first_t
+            last_t = t_est
             if keep:
                 t_out.append(t_est)
                 poses.append(est.pose)
@@ -119,7 +123,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     return ReplayResult(
         np.asarray(t_out), np.asarray(poses).reshape(-1, 3), np.asarray(covs).reshape(-1, 3, 3),
         statuses, Trajectory(truth_t, truth) if truth_t else None, seconds, n_events, interrupted,
-        n_scans)
+        n_scans, (first_t, last_t))
 
 
 def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) -> dict[str, Any]:
