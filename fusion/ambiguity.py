@@ -28,8 +28,17 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from houghloc import GlobalMatchConfig, GlobalResult, SegmentMap, global_match, observe_lines
+from houghloc import (
+    GlobalMatchConfig,
+    GlobalResult,
+    HoughConfig,
+    SegmentMap,
+    global_match,
+    localize_scan,
+    observe_lines,
+)
 from houghloc.geometry import compose, relative, transform_points
+from houghloc.global_match import wall_distance
 
 
 class State(StrEnum):
@@ -63,6 +72,10 @@ class AmbiguityConfig(BaseModel):
     reinit_sigma_xy: float = Field(0.05, gt=0.0, description="m, floor on the new covariance")
     reinit_sigma_theta_deg: float = Field(1.0, gt=0.0)
     failures_until_lost: int = Field(3, ge=1)
+    tie_window: int = Field(
+        10, ge=2, description="scans over which tied poses are compared by how well they fit")
+    tie_lead: float = Field(
+        0.1, gt=0.0, description="lead in the fraction of points on walls that breaks a tie")
     retry_every: int = Field(3, ge=1, description="scans between global attempts")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
 
@@ -103,6 +116,7 @@ class AmbiguityManager:
     _failures: int = 0
     _since_attempt: int = 0
     _hyp_odom: NDArray[np.float64] | None = None
+    _hyp_fit: list = field(default_factory=list)  # per tied pose: recent fractions on walls
     _prior: tuple[NDArray, NDArray, NDArray] | None = None  # pose, cov, odometry when tracking
     logger: object | None = None
 
@@ -134,9 +148,16 @@ class AmbiguityManager:
 
     # ------------------------------------------------------------------ global mode
     def collecting_step(self, t: float, odom: NDArray, points: NDArray,
-                        kinds: tuple[str, ...] = ("wall",)) -> Decision:
-        """Accumulate a view; when there are enough, match the set; decide."""
+                        kinds: tuple[str, ...] = ("wall",),
+                        hough: HoughConfig | None = None) -> Decision:
+        """Accumulate a view; when there are enough, match the set; decide. While poses tie,
+        each is also followed on every scan (``hough`` settings) and scored by how well the scan
+        fits it: the tie breaks as soon as the views stop fitting all of them equally."""
         odom = np.asarray(odom, float)
+        if self.hypotheses and hough is not None:
+            decision = self._follow_ties(t, odom, points, kinds, hough)
+            if decision.reset_pose is not None:
+                return decision
         if self._views and not self._moved_since_last_view(odom):
             return Decision()
         self._views.append(_View(odom, points))
@@ -146,7 +167,7 @@ class AmbiguityManager:
         # retry every few views; once lost (repeated failures) back off: a global match costs
         # tens of scans, and the same views rarely give a different answer
         backoff = max(0, self._failures - self.config.failures_until_lost + 1)
-        wait = self.config.retry_every * 2 ** min(backoff, 4) if self._failures else 0
+        wait = self.config.retry_every * 2 ** min(backoff, 2) if self._failures else 0
         if len(self._views) < self.config.min_views or self._since_attempt < wait:
             return Decision()
         self._since_attempt = 0
@@ -189,8 +210,10 @@ class AmbiguityManager:
             chosen = self._break_tie_with_prior(tied)
             if chosen is not None:
                 return self._accept(t, chosen, "tie broken by the last tracked pose")
-            self.hypotheses = [h.pose for h in tied]
-            self._hyp_odom = self._views[-1].odom.copy()
+            if not self.hypotheses:  # a new tie: follow each of its poses from now on
+                self.hypotheses = [np.asarray(h.pose, float) for h in tied]
+                self._hyp_odom = self._views[-1].odom.copy()
+                self._hyp_fit = [deque(maxlen=self.config.tie_window) for _ in tied]
             self.counts["ties"] += 1
             self._go(t, State.COLLECTING,
                      f"{len(tied)} hypotheses tie (score {top:.2f}): symmetric map, collecting")
@@ -260,6 +283,46 @@ class AmbiguityManager:
         self.hypotheses = []
         cov = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
         return Decision(keep[0], cov)
+
+    def _follow_ties(self, t: float, odom: NDArray, points: NDArray, kinds: tuple[str, ...],
+                     hough: HoughConfig) -> Decision:
+        """Carry each tied pose by odometry, correct it with this scan when the scan fixes it,
+        and record the fraction of the scan's points that lie on the map's walls there. A pose
+        that leads all others by ``tie_lead`` over a full window is the pose; one that trails the
+        best by twice that is dropped."""
+        walls = wall_distance(self.map, kinds, self.config.global_match.dt_cell)
+        prior = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
+        inlier = self.config.global_match.inlier_distance
+        moved = []
+        for pose, fit in zip(self.carried_hypotheses(odom), self._hyp_fit, strict=True):
+            fix = localize_scan(points, self.map, pose, hough, pose_cov=prior)
+            if fix.ok:
+                pose = fix.pose
+            world = transform_points(pose, points) if len(points) else np.empty((0, 2))
+            near = walls.lookup(world[:, 0], world[:, 1]) <= inlier
+            fit.append(float(near.mean()) if len(near) else 0.0)
+            moved.append(pose)
+        self.hypotheses, self._hyp_odom = moved, odom.copy()
+        means = np.array([np.mean(f) for f in self._hyp_fit])
+        best = int(np.argmax(means))
+        keep = means >= means[best] - 2 * self.config.tie_lead
+        if not keep.all():
+            self.hypotheses = [h for h, k in zip(self.hypotheses, keep, strict=True) if k]
+            self._hyp_fit = [f for f, k in zip(self._hyp_fit, keep, strict=True) if k]
+            means = means[keep]
+            best = int(np.argmax(means))
+        full = all(len(f) == self.config.tie_window for f in self._hyp_fit)
+        others = np.delete(means, best)
+        if full and (len(others) == 0 or means[best] - others.max() >= self.config.tie_lead):
+            pose = self.hypotheses[best]
+            self.hypotheses, self._hyp_fit = [], []
+            self._views.clear()
+            self._without_fix = 0
+            rival = others.max() if len(others) else 0.0
+            self._go(t, State.TRACKING, f"tie broken: {means[best]:.2f} of the points on walls "
+                                        f"at one pose, {rival:.2f} at the next best")
+            return Decision(pose, np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2]))
+        return Decision()
 
     def carried_hypotheses(self, odom: NDArray) -> list[NDArray[np.float64]]:
         """The tied hypotheses moved by the odometry since they were found."""

@@ -159,7 +159,7 @@ class Localizer:
             return self._finish(t, self.manager.state.value, None, None, sensor, points)
         t0 = perf_counter()
         kinds = self._sensor(sensor).hough.reference_kinds
-        decision = self.manager.collecting_step(t, odom, points, kinds)
+        decision = self.manager.collecting_step(t, odom, points, kinds, self._sensor(sensor).hough)
         self.stats.seconds["global"] = self.stats.seconds.get("global", 0.0) + perf_counter() - t0
         if decision.reset_pose is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov)
