@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
 from fusion.io.relations import Relations
-from houghloc.geometry import wrap_angle
+from houghloc.geometry import compose, relative, wrap_angle
 
 DEFAULT_MAX_DT = 0.02
 
@@ -95,39 +95,6 @@ class Trajectory:
         return cls(*read_tum(path))
 
 
-def compose_many(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """Row-wise a ⊕ b for N×3 arrays (``houghloc.geometry.compose`` for one pose at a time)."""
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        (
-            a[..., 0] + c * b[..., 0] - s * b[..., 1],
-            a[..., 1] + s * b[..., 0] + c * b[..., 1],
-            wrap_angle(a[..., 2] + b[..., 2]),
-        ),
-        axis=-1,
-    )
-
-
-def inverse_many(a: ArrayLike) -> NDArray[np.float64]:
-    """Row-wise ⊖a for N×3 arrays."""
-    a = np.asarray(a, dtype=float)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        (
-            -c * a[..., 0] - s * a[..., 1],
-            s * a[..., 0] - c * a[..., 1],
-            wrap_angle(-a[..., 2]),
-        ),
-        axis=-1,
-    )
-
-
-def relative_many(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """Row-wise (⊖a) ⊕ b: the motion from a to b in a's frame."""
-    return compose_many(inverse_many(a), b)
-
-
 # -- association and alignment -------------------------------------------------------------------
 
 
@@ -189,7 +156,7 @@ def _nearest(
 
 def align_se2(source: ArrayLike, target: ArrayLike) -> NDArray[np.float64]:
     """The rigid transform T = (tx, ty, φ) minimising Σ‖T ⊕ sourceᵢ − targetᵢ‖² over positions
-    (closed-form 2D Kabsch/Umeyama without scale). Apply it with ``compose_many(T, poses)``."""
+    (closed-form 2D Kabsch/Umeyama without scale). Apply it with ``compose(T, poses)``."""
     src = np.asarray(source, dtype=float)[:, :2]
     dst = np.asarray(target, dtype=float)[:, :2]
     if len(src) != len(dst) or len(src) < 2:
@@ -256,7 +223,7 @@ class ATE:
         transform = np.zeros(3)
         if self.alignment == Alignment.SE2:
             transform = align_se2(e, r)
-            e = compose_many(transform, e)
+            e = compose(transform, e)
         position = np.hypot(e[:, 0] - r[:, 0], e[:, 1] - r[:, 1])
         heading = np.asarray(wrap_angle(e[:, 2] - r[:, 2]), dtype=float)
         return ATEResult(match, transform, position, heading, Alignment(self.alignment))
@@ -349,7 +316,7 @@ def relative_errors(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Translation and rotation errors of the estimated motions ``(⊖est_from) ⊕ est_to`` against the
     reference motions (N×3), as Kümmerle et al. 2009: ‖Δ translation‖ and |wrap(Δ yaw)|."""
-    est_motion = relative_many(est_from, est_to)
+    est_motion = relative(est_from, est_to)
     ref_motion = np.asarray(ref_motion, dtype=float).reshape(-1, 3)
     d = est_motion - ref_motion
     return np.hypot(d[:, 0], d[:, 1]), np.abs(np.asarray(wrap_angle(d[:, 2]), dtype=float))
@@ -371,7 +338,7 @@ class RPE:
         r = ref.poses[match.ref_index][order]
         t = ref.t[match.ref_index][order]
         i, j = self._pairs(t, r)
-        tr, rot = relative_errors(e[i], e[j], relative_many(r[i], r[j]))
+        tr, rot = relative_errors(e[i], e[j], relative(r[i], r[j]))
         return RelativeResult(tr, rot)
 
     def _pairs(

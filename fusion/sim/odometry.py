@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.sim.config import OdometryConfig
-from fusion.sim.poses import compose_many
+from houghloc.geometry import compose
 
 FloatArray = NDArray[np.float64]
 
@@ -36,7 +36,7 @@ def dead_reckon(motion: FloatArray, frame_offset: tuple[float, float, float]) ->
     mid = theta[:-1] + 0.5 * dth
     x = np.concatenate(([0.0], np.cumsum(ds * np.cos(mid))))
     y = np.concatenate(([0.0], np.cumsum(ds * np.sin(mid))))
-    return compose_many(frame_offset, np.column_stack((x, y, theta)))
+    return compose(frame_offset, np.column_stack((x, y, theta)))
 
 
 def simulate_odometry(motion: FloatArray, cfg: OdometryConfig, rng: np.random.Generator

@@ -25,7 +25,7 @@ from fusion.sim.camera import camera_points
 from fusion.sim.config import ScenarioConfig
 from fusion.sim.laser import Occluders, beam_angles, corrupt_ranges, true_ranges
 from fusion.sim.odometry import simulate_odometry
-from fusion.sim.poses import compose_many, interpolate_poses, relative_many
+from fusion.sim.poses import interpolate_poses
 from fusion.sim.raycast import segments_cross
 from fusion.sim.robot import drive
 from fusion.sim.routes import Route, make_route
@@ -37,6 +37,7 @@ from fusion.sim.world import (
     simulate_obstacles,
     wall_segments,
 )
+from houghloc.geometry import compose, relative
 from houghloc.segment_map import SegmentMap
 
 FloatArray = NDArray[np.float64]
@@ -88,9 +89,9 @@ class SimRun:
     def odom_in_map(self) -> FloatArray:
         """The odometry-only path in the map frame, anchored at the true start pose:
         ``truth₀ ⊕ (⊖odom₀ ⊕ odomₖ)``."""
-        rel = relative_many(np.repeat(self.odom_pose[:1], len(self.odom_pose), axis=0),
+        rel = relative(np.repeat(self.odom_pose[:1], len(self.odom_pose), axis=0),
                             self.odom_pose)
-        return compose_many(self.odom_truth[0], rel)
+        return compose(self.odom_truth[0], rel)
 
     def events(self) -> Iterator[Event]:
         """All records in the order a localizer receives them: by arrival time (point sets by
