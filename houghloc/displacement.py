@@ -24,11 +24,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from houghloc.geometry import inverse_3x3
 from houghloc.matching import Matches
 
 UNOBSERVED_VARIANCE = 1.0e6  # m² (or rad²): finite, so no NaN downstream, and plainly "unknown"
 _FULL = np.column_stack(((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))
 _NONE = np.zeros((3, 0))
+_INFO_LAYOUT = np.array([[0, 1, 3], [1, 2, 4], [3, 4, 5]])  # Λ from its six distinct sums
 
 
 @dataclass(frozen=True)
@@ -53,30 +55,26 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
                             z, np.eye(3), 0.0, 0, np.zeros(0))
     # Per match, with n = (cos β, sin β), W = C⁻¹ = [[w00, w01], [w01, w11]] and residual r:
     # Jᵀ W J = [[w11 n nᵀ, w01 n], [w01 nᵀ, w00]],
-    # Jᵀ W r = [−n (w01 r₀ + w11 r₁), −(w00 r₀ + w01 r₁)].
+    # Jᵀ W r = [−n (w01 r₀ + w11 r₁), −(w00 r₀ + w01 r₁)]; one column sum gives all entries.
     c = matches.cov
     det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2
     w00, w01, w11 = c[:, 1, 1] / det, -c[:, 0, 1] / det, c[:, 0, 0] / det
     nx, ny = np.cos(beta), np.sin(beta)
     r0, r1 = matches.residual[:, 0], matches.residual[:, 1]
-    info = np.empty((3, 3))
-    info[0, 0] = (w11 * nx * nx).sum()
-    info[0, 1] = info[1, 0] = (w11 * nx * ny).sum()
-    info[1, 1] = (w11 * ny * ny).sum()
-    info[0, 2] = info[2, 0] = (w01 * nx).sum()
-    info[1, 2] = info[2, 1] = (w01 * ny).sum()
-    info[2, 2] = w00.sum()
     wr = w01 * r0 + w11 * r1
-    b = np.array([-(nx * wr).sum(), -(ny * wr).sum(), -(w00 * r0 + w01 * r1).sum()])
+    terms = np.array((w11 * nx * nx, w11 * nx * ny, w11 * ny * ny, w01 * nx, w01 * ny, w00,
+                      nx * wr, ny * wr, w00 * r0 + w01 * r1)).sum(axis=1)
+    info = terms[_INFO_LAYOUT]
+    b = -terms[6:]
 
     # Observable translation directions: eigenvectors of the Schur complement
     # Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out), a symmetric 2×2 solved in closed form.
-    schur = info[:2, :2] - np.outer(info[:2, 2], info[2, :2]) / info[2, 2]
-    a, bb, d = schur[0, 0], schur[0, 1], schur[1, 1]
+    l_xx, l_xy, l_yy, l_xt, l_yt, l_tt = terms[:6].tolist()
+    a, bb, d = l_xx - l_xt * l_xt / l_tt, l_xy - l_xt * l_yt / l_tt, l_yy - l_yt * l_yt / l_tt
     half_gap = math.hypot(0.5 * (a - d), bb)
     lam_small = 0.5 * (a + d) - half_gap
     if lam_small > 1.0 / max_observable_sigma**2:  # the usual case: the whole pose is observed
-        cov = np.linalg.inv(info)
+        cov = inverse_3x3(info)  # exactly symmetric, as Λ is
         delta = cov @ b
         u, v = _FULL, _NONE
     else:
@@ -92,10 +90,11 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         cov_u = np.linalg.inv(u.T @ info @ u)
         delta = u @ (cov_u @ (u.T @ b))
         cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
+        cov = 0.5 * (cov + cov.T)
     post_0 = r0 + delta[2]  # residual after the correction: r − J Δ
     post_1 = r1 + nx * delta[0] + ny * delta[1]
     per_match = w00 * post_0**2 + 2 * w01 * post_0 * post_1 + w11 * post_1**2
     chi2_total = float(per_match.sum())
     rank = u.shape[1]
-    return Displacement(delta, 0.5 * (cov + cov.T), info, rank, u, v, chi2_total,
+    return Displacement(delta, cov, info, rank, u, v, chi2_total,
                         max(2 * len(matches) - rank, 0), per_match)

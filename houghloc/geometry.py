@@ -87,3 +87,17 @@ def ranges_to_points(
     keep = np.isfinite(r) & np.isfinite(a) & (r > min_range) & (r < max_range)
     r, a = r[keep], a[keep]
     return np.column_stack((r * np.cos(a), r * np.sin(a)))
+
+
+def inverse_3x3(m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverse of a 3×3 matrix by its adjugate (cofactors over the determinant).
+
+    The per-scan covariances are 3×3; written out, the inverse costs a few float operations where
+    ``np.linalg.inv`` costs its general LAPACK call. For the SPD matrices it is used on here.
+    """
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co_a + b * co_b + c * co_c
+    return np.array(((co_a, c * h - b * i, b * f - c * e),
+                     (co_b, a * i - c * g, c * d - a * f),
+                     (co_c, b * g - a * h, a * e - b * d))) / det

@@ -7,15 +7,17 @@ This is where a scan becomes a pose. Everything here is a pure function of its a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from houghloc.config import HoughConfig
 from houghloc.displacement import UNOBSERVED_VARIANCE, estimate_displacement
-from houghloc.geometry import TWO_PI, wrap_angle
-from houghloc.matching import Matches, associate, gate_threshold
+from houghloc.geometry import TWO_PI, inverse_3x3
+from houghloc.matching import Matches, associate, gate_threshold, reassociate
 from houghloc.peaks import find_peaks
 from houghloc.refine import Lines, refine_lines
 from houghloc.segment_map import References, SegmentMap
@@ -73,8 +75,10 @@ def clean_points(points_xy: ArrayLike) -> tuple[NDArray[np.float64], int]:
         return np.empty((0, 2)), 0
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(f"points must be an N×2 array of (x, y), got shape {pts.shape}")
+    if np.isfinite(pts.sum()):  # the usual case, one pass (NaN and ±inf make the sum non-finite)
+        return pts, 0
     finite = np.isfinite(pts).all(axis=1)
-    return (pts if finite.all() else pts[finite]), int((~finite).sum())
+    return pts[finite], int((~finite).sum())
 
 
 def observe_lines(points: NDArray[np.float64], config: HoughConfig
@@ -115,7 +119,7 @@ def localize_scan(
     guess = np.asarray(guess, dtype=float).reshape(-1)
     if guess.shape != (3,) or not np.isfinite(guess).all():
         raise ValueError(f"guess must be three finite numbers (x, y, θ), got {guess!r}")
-    guess = np.array([guess[0], guess[1], float(wrap_angle(guess[2]))])
+    guess = np.array([guess[0], guess[1], _wrap(guess[2])])
     points, n_dropped = clean_points(points_xy)
     dropped = f" ({n_dropped} non-finite dropped)" if n_dropped else ""
     if len(points) < config.peak_min_votes:
@@ -125,31 +129,32 @@ def localize_scan(
     stages = {"n_points": len(points), "grid": grid, "accumulator": acc, "lines": lines}
     if len(lines) == 0:
         return _empty(guess, f"no line in the scan{dropped}", **stages)
-    max_range = config.max_range or float(np.sqrt((points**2).sum(axis=1).max())) + 0.5
+    max_range = config.max_range or math.sqrt(np.einsum("ij,ij->i", points, points).max()) + 0.5
     refs = map.references(guess, max_range, config.reference_kinds, config.visibility_rays)
     stages["references"] = refs
     if len(refs) == 0:
         return _empty(guess, "no map line within range of the guess", **stages)
 
     prior = (np.asarray(pose_cov, dtype=float) if pose_cov is not None else
-             np.diag([config.guess_sigma_xy**2] * 2 + [config.guess_sigma_theta**2]))
+             _default_prior(config.guess_sigma_xy, config.guess_sigma_theta))
     if prior.shape != (3, 3) or not np.isfinite(prior).all():
         raise ValueError("pose_cov must be a finite 3×3 matrix")
-    pose, cov, offset = guess, prior, np.zeros(3)
-    for _ in range(config.match_iterations):
-        base = offset  # the matches' residuals are relative to guess + base
-        matches = associate(lines, shift_references(refs, base), pose, cov, config)
-        disp = estimate_displacement(matches, _beta(refs, base)[matches.ref],
-                                     config.max_observable_sigma)
-        if disp.rank == 0:
-            break
-        offset = base + disp.delta
-        pose = _apply(guess, offset)
-        if len(matches.ambiguous_lines) == 0:
+    base = np.zeros(3)  # the matches' residuals are relative to guess + base
+    matches = associate(lines, refs, guess, prior, config)
+    disp = estimate_displacement(matches, refs.beta[matches.ref], config.max_observable_sigma)
+    offset = disp.delta
+    for _ in range(config.match_iterations - 1):
+        if disp.rank == 0 or len(matches.ambiguous_lines) == 0:
             break  # nothing left to resolve: the estimate is linear, one solve is exact
         # re-match with the prior sharpened by this scan's information: the gates shrink and
         # lines that fitted two references may now fit one
-        cov = np.linalg.inv(np.linalg.inv(prior) + disp.information)
+        cov = inverse_3x3(inverse_3x3(prior) + disp.information)
+        matches = reassociate(matches, lines, refs, _apply(guess, offset), offset - base, cov,
+                              config)
+        base = offset
+        disp = estimate_displacement(matches, refs.beta[matches.ref], config.max_observable_sigma)
+        offset = base + disp.delta
+    pose = _apply(guess, offset)
     if len(matches) == 0:
         reason = "; ".join(matches.reasons) or "no observed line matches the map"
         return _empty(guess, reason, **stages) if not matches.reasons else _flagged(
@@ -163,8 +168,7 @@ def localize_scan(
         worst = int(np.argmax(disp.per_match))
         trial = matches.without(worst, f"dropped an inconsistent line (θ="
                                 f"{np.degrees(lines.theta[matches.line[worst]]):.1f}°)")
-        redo = estimate_displacement(trial, _beta(refs, base)[trial.ref],
-                                     config.max_observable_sigma)
+        redo = estimate_displacement(trial, refs.beta[trial.ref], config.max_observable_sigma)
         if redo.rank < disp.rank:
             break
         offset, matches, disp, limit = base + redo.delta, trial, redo, limit - 1
@@ -180,9 +184,13 @@ def localize_scan(
         reasons.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
     # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
     # directions, against the χ² gate (a filter will run the same test on its innovation).
-    step = disp.observable.T @ np.array([offset[0], offset[1], wrap_angle(offset[2])])
-    both = disp.observable.T @ (prior + disp.cov) @ disp.observable
-    if step @ np.linalg.solve(both, step) > gate_threshold(config.gate_probability, disp.rank):
+    step = np.array([offset[0], offset[1], _wrap(offset[2])])
+    if disp.rank == 3:
+        spread = inverse_3x3(prior + disp.cov)
+    else:
+        step = disp.observable.T @ step
+        spread = np.linalg.inv(disp.observable.T @ (prior + disp.cov) @ disp.observable)
+    if step @ spread @ step > gate_threshold(config.gate_probability, disp.rank):
         reasons.append("correction far outside the guess's uncertainty")
     if disp.rank < 3:
         reasons.insert(0, f"rank {disp.rank}: unobservable along "
@@ -204,31 +212,23 @@ def _flagged(guess: NDArray, reason: str, matches: Matches, stages: dict) -> Sca
 
 def _apply(guess: NDArray, offset: NDArray) -> NDArray:
     return np.array([guess[0] + offset[0], guess[1] + offset[1],
-                     float(wrap_angle(guess[2] + offset[2]))])
+                     _wrap(guess[2] + offset[2])])
 
 
 def _wrapped(offset: NDArray) -> NDArray:
-    return np.array([offset[0], offset[1], float(wrap_angle(offset[2]))])
+    return np.array([offset[0], offset[1], _wrap(offset[2])])
 
 
-def _beta(refs: References, offset: NDArray) -> NDArray:
-    """World normal angles after moving the pose by ``offset`` (a line may change side)."""
-    rho = refs.rho - (offset[0] * np.cos(refs.beta) + offset[1] * np.sin(refs.beta))
-    return np.where(rho < 0, (refs.beta + np.pi) % TWO_PI, refs.beta)
+@lru_cache(maxsize=8)
+def _default_prior(sigma_xy: float, sigma_theta: float) -> NDArray[np.float64]:
+    prior = np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2])
+    prior.flags.writeable = False  # shared between calls
+    return prior
 
 
-def shift_references(refs: References, offset: NDArray) -> References:
-    """References seen from guess + offset: θ_r − Δθ and ρ_r − n_β·Δt, exact for lines."""
-    if not offset.any():
-        return refs
-    rho = refs.rho - (offset[0] * np.cos(refs.beta) + offset[1] * np.sin(refs.beta))
-    flip = rho < 0
-    beta = np.where(flip, (refs.beta + np.pi) % TWO_PI, refs.beta)
-    theta = np.where(flip, refs.theta + np.pi, refs.theta) - offset[2]
-    sign = np.where(flip, -1.0, 1.0)[refs.seg_ref]
-    s0, s1 = refs.seg_s0 * sign, refs.seg_s1 * sign
-    return References(refs.line, theta % TWO_PI, np.abs(rho), beta, refs.seg_ref,
-                      np.minimum(s0, s1), np.maximum(s0, s1))
+def _wrap(angle: float) -> float:
+    """A scalar angle in [−π, π), as ``wrap_angle`` without an array round trip."""
+    return (float(angle) + math.pi) % TWO_PI - math.pi
 
 
 def _direction_name(v: NDArray) -> str:

@@ -41,6 +41,7 @@ class Matches:
     d2: NDArray[np.float64]
     ambiguous_lines: NDArray[np.intp] = field(default_factory=lambda: np.empty(0, np.intp))
     reasons: tuple[str, ...] = ()
+    pairs: PairTable | None = None  # the K×L tables they were chosen from (for re-gating)
 
     def __len__(self) -> int:
         return len(self.line)
@@ -49,7 +50,20 @@ class Matches:
         """These matches less one (an outlier found by the displacement's consistency test)."""
         keep = np.arange(len(self.line)) != index
         return Matches(self.line[keep], self.ref[keep], self.residual[keep], self.cov[keep],
-                       self.d2[keep], self.ambiguous_lines, (*self.reasons, reason))
+                       self.d2[keep], self.ambiguous_lines, (*self.reasons, reason), self.pairs)
+
+
+@dataclass(frozen=True)
+class PairTable:
+    """Every (line, reference) pair of one association: residuals, representation, and whether
+    the observed piece lies on the reference's segments."""
+
+    d_theta: NDArray[np.float64]  # K×L, wrapped
+    d_rho: NDArray[np.float64]  # K×L
+    sign: NDArray[np.float64]  # K×L: +1, or −1 where the flipped representation (θ + π, −ρ) fits
+    on_segments: NDArray[np.bool_]  # K×L extent check (all True where it was not needed)
+    cos_beta: NDArray[np.float64]  # L
+    sin_beta: NDArray[np.float64]  # L
 
 
 _GATES: dict[float, float] = {}
@@ -74,73 +88,96 @@ def associate(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
         e = np.empty(0, np.intp)
         return Matches(e, e, np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0))
     cb, sb = np.cos(refs.beta), np.sin(refs.beta)
-    p_tt = pose_cov[2, 2]
     p_rt = cb * pose_cov[0, 2] + sb * pose_cov[1, 2]  # L: cov(ρ, θ) from the pose
-    p_rr = cb * cb * pose_cov[0, 0] + 2 * cb * sb * pose_cov[0, 1] + sb * sb * pose_cov[1, 1]
-    c_tt = lines.cov[:, 0, 0][:, None]
-    c_tr = lines.cov[:, 0, 1][:, None]
-    c_rr = lines.cov[:, 1, 1][:, None]
-    s00 = p_tt + c_tt  # K×L
-    s11 = p_rr[None, :] + c_rr
-    # Both representations of each observed line: (θ, ρ) and (θ + π, −ρ); the latter negates
-    # cov(θ, ρ). The one closer to the reference is kept.
-    d_theta = (lines.theta[:, None] - refs.theta[None, :] + np.pi) % TWO_PI - np.pi
-    d_theta_flip = (d_theta + TWO_PI) % TWO_PI - np.pi  # (θ + π) − θ_ref, wrapped
-    d_rho = lines.rho[:, None] - refs.rho[None, :]
-    d_rho_flip = -lines.rho[:, None] - refs.rho[None, :]
-    s01 = p_rt[None, :] + c_tr
-    s01_flip = p_rt[None, :] - c_tr
-    d2 = _quadratic(d_theta, d_rho, s00, s01, s11)
-    d2_flip = _quadratic(d_theta_flip, d_rho_flip, s00, s01_flip, s11)
-    flip = d2_flip < d2
-    best_d2 = np.where(flip, d2_flip, d2)
-    res = np.stack((np.where(flip, d_theta_flip, d_theta), np.where(flip, d_rho_flip, d_rho)), -1)
-    gated = best_d2 <= gate_threshold(config.gate_probability)
-    candidate = gated
+    p_rr = cb * (cb * pose_cov[0, 0] + 2 * sb * pose_cov[0, 1]) + sb * sb * pose_cov[1, 1]
+    # Each observed line has two representations, (θ, ρ) and (θ + π, −ρ) (which negates its
+    # cov(θ, ρ)); the one whose normal points the reference's way (|Δθ| ≤ π/2) is compared.
+    d_theta = (lines.theta[:, None] - refs.theta + np.pi) % TWO_PI - np.pi  # K×L
+    flip = np.abs(d_theta) > 0.5 * np.pi
+    sign = 1.0 - 2.0 * flip
+    d_theta -= np.copysign(np.pi, d_theta) * flip
+    d_rho = sign * lines.rho[:, None] - refs.rho
+    gated = _gate(lines, d_theta, d_rho, sign, p_rt, p_rr, pose_cov, config)
+    on_segments = np.ones_like(flip)
+    if gated[0].any():
+        on_segments = _extents_overlap(lines, refs, cb, sb, pose, pose_cov, flip, config)
+    table = PairTable(d_theta, d_rho, sign, on_segments, cb, sb)
+    return _resolve(lines, gated[0] & on_segments, gated[1], table, config)
+
+
+def reassociate(matches: Matches, lines: Lines, refs: References, pose: NDArray,
+                offset: NDArray, pose_cov: NDArray, config: HoughConfig) -> Matches:
+    """The association again at ``pose``, moved by ``offset`` = (Δx, Δy, Δθ) from where
+    ``matches`` were made, with a new pose covariance (sharper: the gates shrink and lines that
+    fitted two references may fit one).
+
+    References move linearly with the pose (θ_r − Δθ, ρ_r − n·Δt), so the residuals are updated
+    rather than recomputed.
+    """
+    table = matches.pairs
+    if table is None or len(lines) == 0:
+        return matches
+    d_theta = table.d_theta + offset[2]
+    d_rho = table.d_rho + (table.cos_beta * offset[0] + table.sin_beta * offset[1])
+    cb, sb = table.cos_beta, table.sin_beta
+    p_rt = cb * pose_cov[0, 2] + sb * pose_cov[1, 2]
+    p_rr = cb * (cb * pose_cov[0, 0] + 2 * sb * pose_cov[0, 1]) + sb * sb * pose_cov[1, 1]
+    gated, d2 = _gate(lines, d_theta, d_rho, table.sign, p_rt, p_rr, pose_cov, config)
+    on_segments = table.on_segments
     if gated.any():
-        candidate = gated & _extents_overlap(lines, refs, pose, pose_cov, config)
-    flip_cov = lines.cov * np.array([[1.0, -1.0], [-1.0, 1.0]])
-    return _resolve(lines, candidate, best_d2, res, flip, flip_cov, config)
+        on_segments = _extents_overlap(lines, refs, cb, sb, pose, pose_cov, table.sign < 0,
+                                       config)
+    moved = PairTable(d_theta, d_rho, table.sign, on_segments, cb, sb)
+    return _resolve(lines, gated & on_segments, d2, moved, config)
 
 
-def _quadratic(a: NDArray, b: NDArray, s00: NDArray, s01: NDArray, s11: NDArray) -> NDArray:
-    """(a, b) S⁻¹ (a, b)ᵀ for symmetric 2×2 S, elementwise."""
-    det = s00 * s11 - s01 * s01
-    return (s11 * a * a - 2.0 * s01 * a * b + s00 * b * b) / det
+def _gate(lines: Lines, d_theta: NDArray, d_rho: NDArray, sign: NDArray, p_rt: NDArray,
+          p_rr: NDArray, pose_cov: NDArray, config: HoughConfig) -> tuple[NDArray, NDArray]:
+    """χ²(2) gate on every pair: d² = rᵀ S⁻¹ r with S = J P Jᵀ + C written out (2×2)."""
+    s00 = pose_cov[2, 2] + lines.cov[:, 0, 0][:, None]
+    s01 = p_rt + sign * lines.cov[:, 0, 1][:, None]
+    s11 = p_rr + lines.cov[:, 1, 1][:, None]
+    d2 = (s11 * d_theta * d_theta - 2.0 * s01 * d_theta * d_rho + s00 * d_rho * d_rho) / (
+        s00 * s11 - s01 * s01)
+    return d2 <= gate_threshold(config.gate_probability), d2
 
 
-def _extents_overlap(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
+def _extents_overlap(lines: Lines, refs: References, cos_beta: NDArray, sin_beta: NDArray,
+                     pose: NDArray, pose_cov: NDArray, flip: NDArray[np.bool_],
                      config: HoughConfig) -> NDArray[np.bool_]:
     """K×L: does the observed piece, placed in the world at ``pose``, lie on the line's segments?
 
     Along the reference direction t = (−sin β, cos β) a robot-frame coordinate s maps to
-    s + (x, y)·t. The fraction of the observed piece covered by the segments (each widened by a
-    slack that grows with the pose uncertainty along t and with the heading uncertainty times the
-    distance) must reach ``min_extent_coverage``: a wall seen through a goal mouth or a door is not
-    the wall beside the opening.
+    s + (x, y)·t (−s when the line is seen with the flipped normal). The fraction of the observed
+    piece covered by the segments (each widened by a slack that grows with the pose uncertainty
+    along t and with the heading uncertainty times the distance) must reach
+    ``min_extent_coverage``: a wall seen through a goal mouth or a door is not the wall beside
+    the opening.
     """
-    tx, ty = -np.sin(refs.beta), np.cos(refs.beta)
-    offset = tx * pose[0] + ty * pose[1]  # L
-    var_along = tx * tx * pose_cov[0, 0] + 2 * tx * ty * pose_cov[0, 1] + ty * ty * pose_cov[1, 1]
-    reach = np.maximum(np.abs(lines.s0), np.abs(lines.s1))  # K
+    tx, ty = -sin_beta, cos_beta
     seg = refs.seg_ref
-    sigma = np.sqrt(np.maximum(var_along[seg], 0.0)[None, :]
-                    + (reach**2 * max(pose_cov[2, 2], 0.0))[:, None])  # K×S
-    slack = config.extent_margin + 3.0 * sigma
-    seg_lo = refs.seg_s0[None, :] - slack - offset[seg][None, :]  # segment in robot coordinates
-    seg_hi = refs.seg_s1[None, :] + slack - offset[seg][None, :]
-    s0, s1 = lines.s0[:, None], lines.s1[:, None]
-    # the line may have been seen with the flipped normal: then its direction is reversed
-    overlap = np.maximum(np.clip(np.minimum(s1, seg_hi) - np.maximum(s0, seg_lo), 0.0, None),
-                         np.clip(np.minimum(-s0, seg_hi) - np.maximum(-s1, seg_lo), 0.0, None))
-    onehot = np.zeros((len(seg), len(refs)))
-    onehot[np.arange(len(seg)), seg] = 1.0
-    covered = (overlap @ onehot) / np.maximum(lines.s1 - lines.s0, 1e-6)[:, None]
-    return covered >= config.min_extent_coverage
+    offset = (tx * pose[0] + ty * pose[1])[seg]  # S
+    var_along = (tx * (tx * pose_cov[0, 0] + 2 * ty * pose_cov[0, 1]) + ty * ty * pose_cov[1, 1])
+    reach_sq = np.maximum(np.abs(lines.s0), np.abs(lines.s1)) ** 2  # K
+    slack = config.extent_margin + 3.0 * np.sqrt(
+        np.maximum(var_along[seg], 0.0) + (reach_sq * max(pose_cov[2, 2], 0.0))[:, None])  # K×S
+    seg_lo = refs.seg_s0 - offset - slack  # the segments in robot coordinates
+    seg_hi = refs.seg_s1 - offset + slack
+    flip_s = flip[:, seg]
+    s0 = np.where(flip_s, -lines.s1[:, None], lines.s0[:, None])
+    s1 = np.where(flip_s, -lines.s0[:, None], lines.s1[:, None])
+    overlap = np.maximum(np.minimum(s1, seg_hi) - np.maximum(s0, seg_lo), 0.0)
+    covered = overlap @ _one_hot(seg, len(refs))
+    return covered >= config.min_extent_coverage * np.maximum(lines.s1 - lines.s0, 1e-6)[:, None]
 
 
-def _resolve(lines: Lines, candidate: NDArray, d2: NDArray, res: NDArray, flip: NDArray,
-             flip_cov: NDArray, config: HoughConfig) -> Matches:
+def _one_hot(index: NDArray[np.intp], n: int) -> NDArray[np.float64]:
+    """len(index)×n matrix with a one in each row's column ``index``: sums rows into groups."""
+    return (index[:, None] == np.arange(n)).astype(np.float64)
+
+
+def _resolve(lines: Lines, candidate: NDArray, d2: NDArray, table: PairTable,
+             config: HoughConfig) -> Matches:
     reasons: list[str] = []
     if config.nearest_neighbour_only:  # keep only each line's nearest candidate: no ambiguity
         nearest = np.where(candidate, d2, np.inf).argmin(axis=1)
@@ -172,7 +209,7 @@ def _resolve(lines: Lines, candidate: NDArray, d2: NDArray, res: NDArray, flip: 
     if shared.any():
         for j in np.unique(rj[shared]):
             idx = li[rj == j]
-            r = res[idx, j]
+            r = np.column_stack((table.d_theta[idx, j], table.d_rho[idx, j]))
             spread = np.abs(r - r.mean(axis=0))
             sig = np.sqrt(np.stack((lines.cov[idx, 0, 0], lines.cov[idx, 1, 1]), -1))
             if np.any(spread > 3.0 * sig + np.array([config.theta_step / 4, config.rho_step / 4])):
@@ -180,6 +217,8 @@ def _resolve(lines: Lines, candidate: NDArray, d2: NDArray, res: NDArray, flip: 
                 reasons.append(f"{len(idx)} lines claim one map line")
         keep = ~ambiguous[li]
         li, rj = li[keep], rj[keep]
-    cov = np.where(flip[li, rj][:, None, None], flip_cov[li], lines.cov[li])
-    return Matches(li, rj, res[li, rj], cov, d2[li, rj], np.flatnonzero(ambiguous),
-                   tuple(reasons))
+    cov = lines.cov[li]
+    cov[:, 0, 1] *= table.sign[li, rj]  # the flipped representation negates cov(θ, ρ)
+    cov[:, 1, 0] = cov[:, 0, 1]
+    return Matches(li, rj, np.array((table.d_theta[li, rj], table.d_rho[li, rj])).T, cov,
+                   d2[li, rj], np.flatnonzero(ambiguous), tuple(reasons), table)

@@ -4,6 +4,7 @@ and non-maximum suppression in a window that wraps around θ."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -24,6 +25,11 @@ class Peaks:
         return len(self.votes)
 
 
+@lru_cache(maxsize=8)
+def _kernel(w: int, h: int) -> NDArray[np.uint8]:
+    return np.ones((2 * w + 1, 2 * h + 1), np.uint8)
+
+
 def find_peaks(acc: NDArray[np.integer], n_points: int, config: HoughConfig,
                limit: int | None = None) -> Peaks:
     """Cells with ≥ max(peak_min_votes, peak_fraction·N) votes, maximal in their window.
@@ -40,11 +46,14 @@ def find_peaks(acc: NDArray[np.integer], n_points: int, config: HoughConfig,
         return Peaks(e, e, np.empty(0, acc.dtype))
     w, h = config.nms_theta_cells, config.nms_rho_cells
     dtype = np.uint16 if n_points < 65535 else np.float32  # types OpenCV dilates
-    padded = np.concatenate((acc[-w:], acc, acc[:w])).astype(dtype)
-    kernel = np.ones((2 * w + 1, 2 * h + 1), np.uint8)
-    window_max = cv2.dilate(padded, kernel)[w:-w].ravel()
-    cand = cand[flat[cand] >= window_max[cand]]
+    # only the columns up to the last candidate (and a window beyond) can matter: near scans
+    # leave the far columns empty
+    i_theta, i_rho = np.divmod(cand, acc.shape[1])
+    used = acc[:, : int(i_rho.max()) + 1 + h]
+    padded = np.concatenate((used[-w:], used, used[:w]), dtype=dtype, casting="unsafe")
+    window_max = cv2.dilate(padded, _kernel(w, h))[w:-w]
     v = flat[cand]
+    peak = v >= window_max[i_theta, i_rho]
+    v, i_theta, i_rho = v[peak], i_theta[peak], i_rho[peak]
     order = np.argsort(-v, kind="stable")[: limit or config.max_peaks]
-    it, ir = np.divmod(cand[order], acc.shape[1])
-    return Peaks(it, ir, v[order])
+    return Peaks(i_theta[order], i_rho[order], v[order])

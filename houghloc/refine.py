@@ -3,7 +3,8 @@
 The grid bounds the paper's precision (3°, 10 cm). Each peak's inlier points — those within a band
 of its line — are fitted by total least squares, the band is narrowed to the fit's own scatter, and
 the points are split into contiguous pieces along the line; pieces too small or too short are
-dropped (a robot's arc, a lone return). All peaks are processed together as N×K matrices.
+dropped (a robot's arc, a lone return). All peaks are processed together: N×K matrices for the
+first fit, then one line label per point.
 
 Covariance of a fitted line (normal angle θ, offset ρ), with σ² the residual variance, N inliers,
 sᵢ their coordinates along the line and s̄ their mean:
@@ -15,6 +16,7 @@ plus a small floor on each diagonal term (``line_theta_floor_deg``, ``line_rho_f
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -59,9 +61,14 @@ class Lines:
 def _moments(points: NDArray, weights: NDArray | None = None) -> NDArray:
     """Per-point monomials w·[1, x, y, x², xy, y²]: one product with a mask gives all line sums
     (weighted sums when the points have weights)."""
-    x, y = points[:, 0], points[:, 1]
-    mono = np.column_stack((np.ones(len(points)), x, y, x * x, x * y, y * y))
+    mono = np.empty((len(points), 6))
+    mono[:, 0] = 1.0
+    mono[:, 1:3] = points
+    np.multiply(points[:, _SQUARE_LEFT], points[:, _SQUARE_RIGHT], out=mono[:, 3:])
     return mono if weights is None else mono * weights[:, None]
+
+
+_SQUARE_LEFT, _SQUARE_RIGHT = np.array([0, 0, 1]), np.array([0, 1, 1])  # x·x, x·y, y·y
 
 
 def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
@@ -69,54 +76,49 @@ def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
 
     The scatter matrix comes from the masked sums (Mᵀ·[1, x, y, x², xy, y²]); the normal is the
     eigenvector of its smallest eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, the mean square
-    residual Σwr²/W, the weight W = Σw (the count N for unit weights), the centroid c (K×2) and
+    residual Σwr²/W, the weight W = Σw (the count N for unit weights), the centroid c (2×K) and
     the variance along the line (the spread of the points).
     """
-    sums = mask.T.astype(np.float64) @ monomials  # K×6
-    n = sums[:, 0]
-    safe = np.maximum(n, 1.0)
-    cx, cy = sums[:, 1] / safe, sums[:, 2] / safe
-    sxx = sums[:, 3] / safe - cx * cx
-    sxy = sums[:, 4] / safe - cx * cy
-    syy = sums[:, 5] / safe - cy * cy
+    sums = monomials.T @ mask.astype(np.float64)  # 6×K
+    n = sums[0]
+    moments = sums[1:] / np.maximum(n, 1.0)
+    cx, cy = moments[0], moments[1]
+    sxx = moments[2] - cx * cx
+    sxy = moments[3] - cx * cy
+    syy = moments[4] - cy * cy
     theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy) + 0.5 * np.pi  # normal ⊥ principal axis
-    root = np.sqrt(0.25 * (sxx - syy) ** 2 + sxy**2)
-    lam_min = np.maximum(0.5 * (sxx + syy) - root, 0.0)
-    lam_max = 0.5 * (sxx + syy) + root
+    half_sum, root = 0.5 * (sxx + syy), np.hypot(0.5 * (sxx - syy), sxy)
     rho = cx * np.cos(theta) + cy * np.sin(theta)
-    theta = np.where(rho < 0, theta + np.pi, theta) % TWO_PI
-    return theta, np.abs(rho), lam_min, n, np.column_stack((cx, cy)), lam_max
+    theta[rho < 0] += np.pi
+    return (theta % TWO_PI, np.abs(rho), np.maximum(half_sum - root, 0.0), n, moments[:2],
+            half_sum + root)
 
 
-def _split_pieces(s: NDArray, mask: NDArray, config: HoughConfig) -> NDArray[np.bool_]:
-    """Keep only points in contiguous pieces with at least ``min_piece_points`` (all lines at once).
+def _split_pieces(points: NDArray, label: NDArray[np.intp], cos_t: NDArray, sin_t: NDArray,
+                  config: HoughConfig) -> NDArray[np.intp]:
+    """Keep only points in contiguous pieces of at least ``min_piece_points`` (all lines at once).
 
-    Each line's inliers are binned along the line in cells of half ``piece_gap``; a run of
-    occupied cells is a piece. A gap wider than ``piece_gap`` always leaves an empty cell, so it
-    always splits (a gap between half and one ``piece_gap`` may). One bincount over (line, cell)
-    does all lines together, without sorting the points.
+    ``label`` gives each point's line (−1: none), ``cos_t``/``sin_t`` the lines' normals. The
+    labelled points are sorted by (line, coordinate along the line); a step wider than
+    ``piece_gap`` or a change of line starts a new piece. Returns the labels with the points of
+    small pieces set to −1.
     """
-    k = s.shape[1]
-    if k == 0 or not mask.any():
-        return mask
-    half = 0.5 * config.piece_gap
-    s_in = np.where(mask, s, np.inf)
-    lo = s_in.min(axis=0)
-    lo = np.where(np.isfinite(lo), lo, 0.0)
-    cell = ((s - lo) * (1.0 / half)).astype(np.int64)
-    n_cells = int(cell[mask].max()) + 2
-    np.clip(cell, 0, n_cells - 1, out=cell)
-    flat = cell + np.arange(k) * n_cells  # N×K global cell ids
-    counts = np.bincount(flat[mask], minlength=k * n_cells)
-    occupied = counts > 0
-    start = occupied.copy()
-    start[1:] &= ~occupied[:-1]
-    start[::n_cells] = occupied[::n_cells]  # a row's first cell starts a piece if occupied
-    piece = np.cumsum(start) - 1
-    size = np.bincount(piece[occupied], weights=counts[occupied],
-                       minlength=int(start.sum()))
-    good_cell = occupied & (size[np.maximum(piece, 0)] >= config.min_piece_points)
-    return mask & good_cell[flat]
+    idx = np.flatnonzero(label >= 0)
+    if len(idx) == 0:
+        return label
+    lab = label[idx]
+    along = points[idx, 1] * cos_t[lab] - points[idx, 0] * sin_t[lab]
+    # lines are at most a few hundred metres long: the line index dominates the sort key
+    order = np.argsort(lab * 1.0e4 + along)
+    lab, along = lab[order], along[order]
+    starts = np.empty(len(lab), dtype=bool)
+    starts[0] = True
+    np.logical_or(along[1:] - along[:-1] > config.piece_gap, lab[1:] != lab[:-1], out=starts[1:])
+    piece = np.cumsum(starts) - 1
+    small = np.bincount(piece)[piece] < config.min_piece_points
+    out = label.copy()
+    out[idx[order[small]]] = -1
+    return out
 
 
 def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
@@ -127,61 +129,57 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
     """
     monomials = _moments(points, weights)
     max_band = config.refine_max_band or config.rho_step
-    band = max_band  # first pass: one cell (or the widest band) either side of the peak
     theta, rho = np.asarray(theta0, float), np.asarray(rho0, float)
+    band = np.full(len(theta), max_band)  # first pass: one cell (or the widest band) each side
     mask = _inliers(points, theta, rho, band)
-    n = mask.sum(axis=0)
+    n = mask.sum(axis=0) if config.refine_iterations == 1 else None
     for it in range(config.refine_iterations - 1):  # re-centre the band on a first fit
         if it:
             mask = _inliers(points, theta, rho, band)
         theta, rho, mean_sq, n, _, _ = _tls(monomials, mask)
-        band = np.clip(config.refine_band_sigmas * np.sqrt(mean_sq), config.refine_min_band,
-                       max_band)
+        band = np.minimum(np.maximum(config.refine_band_sigmas * np.sqrt(mean_sq),
+                                     config.refine_min_band), max_band)
     keep = _distinct(mask, n, theta, rho, config)
-    theta, rho, band = theta[keep], rho[keep], np.broadcast_to(band, keep.shape)[keep]
+    theta, rho, band = theta[keep], rho[keep], band[keep]
+    k = len(theta)
+    cos_t, sin_t = np.cos(theta), np.sin(theta)
     # Each point now belongs to the nearest line whose band holds it: a point near a corner
     # biases only the wall it is on, and twin peaks cannot share their points.
-    dist = np.abs(points @ np.vstack((np.cos(theta), np.sin(theta))) - rho) / band
-    mask = np.zeros(dist.shape, dtype=bool)
-    if dist.shape[1]:
-        nearest = np.argmin(dist, axis=1)
-        rows = np.arange(len(points))
-        mask[rows, nearest] = dist[rows, nearest] <= 1.0
-    normal = np.vstack((np.cos(theta), np.sin(theta)))
-    mask = _split_pieces(points @ np.vstack((-normal[1], normal[0])), mask, config)
+    if k:
+        dist = np.abs(points @ np.array((cos_t, sin_t)) - rho) / band
+        label = np.where(dist.min(axis=1) <= 1.0, np.argmin(dist, axis=1), -1)
+        label = _split_pieces(points, label, cos_t, sin_t, config)
+    else:
+        label = np.full(len(points), -1, dtype=np.intp)
+    mask = label[:, None] == np.arange(k)
     theta, rho, mean_sq, weight, c, spread_var = _tls(monomials, mask)
-    n = mask.sum(axis=0) if weights is not None else weight
+    n = np.bincount(label + 1, minlength=k + 1)[1:] if weights is not None else weight
     var = mean_sq * weight / np.maximum(n - 2.0, 1.0)  # σ² = Σwr² / (N − 2), unbiased
 
     sigma = np.sqrt(var)
-    t = np.vstack((-np.sin(theta), np.cos(theta)))
-    along = points @ t  # N×K
-    s_bar = c[:, 0] * t[0] + c[:, 1] * t[1]
-    s0 = np.where(mask, along, np.inf).min(axis=0)
-    s1 = np.where(mask, along, -np.inf).max(axis=0)
-    ok = (
-        (n >= config.min_piece_points)
-        & (sigma <= config.max_line_sigma)
-        & (s1 - s0 >= config.min_line_length)
-    )
+    cos_t, sin_t = np.cos(theta), np.sin(theta)
+    s_bar = cos_t * c[1] - sin_t * c[0]  # centroid along t = (−sin θ, cos θ)
+    along = points @ np.array((-sin_t, cos_t))  # N×K
+    s0 = np.where(mask, along, np.inf).min(axis=0, initial=np.inf)
+    s1 = np.where(mask, along, -np.inf).max(axis=0, initial=-np.inf)
+    ok = (n >= config.min_piece_points) & (sigma <= config.max_line_sigma) & (
+        s1 - s0 >= config.min_line_length)
     var_eff = np.maximum(var, config.point_sigma_floor**2)
     v_theta = var_eff / np.maximum(spread_var * weight, 1e-12)  # σ² / Σwᵢ(sᵢ − s̄)²
     v_off = var_eff / np.maximum(weight, 1e-12)  # σ² / Σwᵢ
-    cov = np.empty((len(theta), 2, 2))
-    cov[:, 0, 0] = v_theta
-    cov[:, 0, 1] = cov[:, 1, 0] = s_bar * v_theta
-    cov[:, 1, 1] = v_off + s_bar**2 * v_theta
+    cov = np.empty((k, 2, 2))
     # Real walls are not perfect lines and sensors have small biases: a floor keeps thousands of
     # points from claiming sub-millimetre certainty.
-    cov[:, 0, 0] += config.line_theta_floor**2
-    cov[:, 1, 1] += config.line_rho_floor**2
+    cov[:, 0, 0] = v_theta + config.line_theta_floor**2
+    cov[:, 0, 1] = cov[:, 1, 0] = s_bar * v_theta
+    cov[:, 1, 1] = v_off + s_bar**2 * v_theta + config.line_rho_floor**2
     lines = Lines(theta, rho, cov, n.astype(np.int64), sigma, s0, s1, mask)
     return lines if ok.all() else lines.subset(ok)
 
 
 def _inliers(points: NDArray, theta: NDArray, rho: NDArray, band: NDArray | float) -> NDArray:
     """N×K mask of |p·n − ρ| ≤ band."""
-    return np.abs(points @ np.vstack((np.cos(theta), np.sin(theta))) - rho) <= band
+    return np.abs(points @ np.array((np.cos(theta), np.sin(theta))) - rho) <= band
 
 
 def _distinct(mask: NDArray[np.bool_], n: NDArray, theta: NDArray, rho: NDArray,
@@ -193,12 +191,16 @@ def _distinct(mask: NDArray[np.bool_], n: NDArray, theta: NDArray, rho: NDArray,
     only and differ by far more than half a cell."""
     m = mask.astype(np.float32)
     shared = m.T @ m  # K×K counts of common inliers
-    k = len(n)
-    idx = np.arange(k)
-    same = shared > 0.5 * np.minimum(n[:, None], n[None, :])
+    same = shared > 0.5 * np.minimum(n[:, None], n)
     dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % TWO_PI - np.pi)
     same |= (dth < 0.5 * config.theta_step) & (np.abs(rho[:, None] - rho[None, :])
                                                < 0.5 * config.rho_step)
-    stronger = (n[None, :] > n[:, None]) | (
-        (n[None, :] == n[:, None]) & (idx[None, :] < idx[:, None]))
+    # stronger[i, j]: line j outranks line i (more inliers; on a tie, the earlier, stronger peak)
+    stronger = (n > n[:, None]) | ((n == n[:, None]) & _earlier(len(n)))
     return (n > 0) & ~(same & stronger).any(axis=1)
+
+
+@lru_cache(maxsize=64)
+def _earlier(k: int) -> NDArray[np.bool_]:
+    """K×K: column j comes before row i."""
+    return np.tri(k, k, -1, dtype=bool)
