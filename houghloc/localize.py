@@ -129,7 +129,9 @@ def localize_scan(
     stages = {"n_points": len(points), "grid": grid, "accumulator": acc, "lines": lines}
     if len(lines) == 0:
         return _empty(guess, f"no line in the scan{dropped}", **stages)
-    max_range = config.max_range or math.sqrt(np.einsum("ij,ij->i", points, points).max()) + 0.5
+    # the scan's reach, rounded up to whole metres so that the memoised visibility is reused
+    max_range = config.max_range or math.ceil(
+        math.sqrt(np.einsum("ij,ij->i", points, points).max()) + 0.5)
     refs = map.references(guess, max_range, config.reference_kinds, config.visibility_rays)
     stages["references"] = refs
     if len(refs) == 0:
