@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from houghloc.geometry import compose, relative
+from houghloc.geometry import compose, relative, wrap_scalar
 
 # Below this, an increment is treated as exactly zero (a reading repeated by the driver).
 _ZERO_MOTION = 1e-12
@@ -101,10 +101,6 @@ def interpolate(a: ArrayLike, b: ArrayLike, s: float) -> NDArray[np.float64]:
     return compose(a, step)
 
 
-def _wrap(angle: float) -> float:
-    """wrap_angle for one Python float (this module runs once per odometry reading)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
 
 class OdometryMotionModel:
     """Noise of odometry increments and detection of implausible ones (jumps)."""
@@ -130,8 +126,8 @@ class OdometryMotionModel:
         else:
             rot1, signed_trans = math.atan2(dy, dx), trans
             if abs(rot1) > math.pi / 2:  # driving backwards
-                rot1, signed_trans = _wrap(rot1 - math.pi), -trans
-        rot2 = _wrap(dth - rot1)
+                rot1, signed_trans = wrap_scalar(rot1 - math.pi), -trans
+        rot2 = wrap_scalar(dth - rot1)
         # Translation's heading noise is split over the two rotations: α₂² per metre in total.
         var_rot1 = c.alpha1**2 * abs(rot1) + 0.5 * c.alpha2**2 * trans
         var_trans = c.alpha3**2 * trans + c.alpha4**2 * (abs(rot1) + abs(rot2))

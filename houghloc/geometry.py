@@ -35,7 +35,7 @@ def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
         ax, ay, at = a.tolist()
         bx, by, bt = b.tolist()
         c, s = math.cos(at), math.sin(at)
-        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, _wrap(at + bt)])
+        return np.array([ax + c * bx - s * by, ay + s * bx + c * by, wrap_scalar(at + bt)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     out = np.empty(np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 0] + c * b[..., 0] - s * b[..., 1]
@@ -50,7 +50,7 @@ def inverse(a: ArrayLike) -> NDArray[np.float64]:
     if a.ndim == 1:
         ax, ay, at = a.tolist()
         c, s = math.cos(at), math.sin(at)
-        return np.array([-c * ax - s * ay, s * ax - c * ay, _wrap(-at)])
+        return np.array([-c * ax - s * ay, s * ax - c * ay, wrap_scalar(-at)])
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     out = np.empty(a.shape)
     out[..., 0] = -c * a[..., 0] - s * a[..., 1]
@@ -64,8 +64,10 @@ def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     return compose(inverse(a), b)
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % TWO_PI - math.pi
+def wrap_scalar(angle: float) -> float:
+    """One angle (a Python float) wrapped to [-π, π): ``wrap_angle`` without an array round trip,
+    for the code that runs once per reading or per scan."""
+    return (float(angle) + math.pi) % TWO_PI - math.pi
 
 
 def transform_points(pose: ArrayLike, points: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from houghloc.config import HoughConfig
 from houghloc.displacement import UNOBSERVED_VARIANCE, estimate_displacement
-from houghloc.geometry import TWO_PI, inverse_3x3
+from houghloc.geometry import TWO_PI, inverse_3x3, wrap_scalar
 from houghloc.matching import Matches, associate, gate_threshold, reassociate
 from houghloc.peaks import find_peaks
 from houghloc.refine import Lines, refine_lines
@@ -119,7 +119,7 @@ def localize_scan(
     guess = np.asarray(guess, dtype=float).reshape(-1)
     if guess.shape != (3,) or not np.isfinite(guess).all():
         raise ValueError(f"guess must be three finite numbers (x, y, θ), got {guess!r}")
-    guess = np.array([guess[0], guess[1], _wrap(guess[2])])
+    guess = np.array([guess[0], guess[1], wrap_scalar(guess[2])])
     points, n_dropped = clean_points(points_xy)
     dropped = f" ({n_dropped} non-finite dropped)" if n_dropped else ""
     if len(points) < config.peak_min_votes:
@@ -186,7 +186,7 @@ def localize_scan(
         reasons.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
     # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
     # directions, against the χ² gate (a filter will run the same test on its innovation).
-    step = np.array([offset[0], offset[1], _wrap(offset[2])])
+    step = np.array([offset[0], offset[1], wrap_scalar(offset[2])])
     if disp.rank == 3:
         spread = inverse_3x3(prior + disp.cov)
     else:
@@ -214,11 +214,11 @@ def _flagged(guess: NDArray, reason: str, matches: Matches, stages: dict) -> Sca
 
 def _apply(guess: NDArray, offset: NDArray) -> NDArray:
     return np.array([guess[0] + offset[0], guess[1] + offset[1],
-                     _wrap(guess[2] + offset[2])])
+                     wrap_scalar(guess[2] + offset[2])])
 
 
 def _wrapped(offset: NDArray) -> NDArray:
-    return np.array([offset[0], offset[1], _wrap(offset[2])])
+    return np.array([offset[0], offset[1], wrap_scalar(offset[2])])
 
 
 @lru_cache(maxsize=8)
@@ -226,11 +226,6 @@ def _default_prior(sigma_xy: float, sigma_theta: float) -> NDArray[np.float64]:
     prior = np.diag([sigma_xy**2, sigma_xy**2, sigma_theta**2])
     prior.flags.writeable = False  # shared between calls
     return prior
-
-
-def _wrap(angle: float) -> float:
-    """A scalar angle in [−π, π), as ``wrap_angle`` without an array round trip."""
-    return (float(angle) + math.pi) % TWO_PI - math.pi
 
 
 def _direction_name(v: NDArray) -> str:

@@ -27,6 +27,7 @@ from numpy.typing import NDArray
 
 from fusion.sim.config import Kidnap, RobotConfig
 from fusion.sim.routes import Route
+from houghloc.geometry import wrap_scalar
 
 FloatArray = NDArray[np.float64]
 
@@ -42,9 +43,6 @@ class Trajectory:
     motion: FloatArray
     kidnapped: NDArray[np.bool_]
 
-
-def _wrap(a: float) -> float:
-    return (a + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def drive(route: Route, cfg: RobotConfig, dt: float, n_steps: int,
@@ -107,7 +105,7 @@ def drive(route: Route, cfg: RobotConfig, dt: float, n_steps: int,
             v_cmd = w_cmd = 0.0
         else:
             ahead = max(s, 0.0) + look
-            err = _wrap(math.atan2(ay + ahead * uy - y, ax + ahead * ux - x) - th)
+            err = wrap_scalar(math.atan2(ay + ahead * uy - y, ax + ahead * ux - x) - th)
             w_cmd = max(-wmax, min(wmax, k_gain * err))
             c = math.cos(err)
             v_cmd = vmax * c**4 if abs(err) < math.pi / 3 else 0.0
@@ -119,12 +117,12 @@ def drive(route: Route, cfg: RobotConfig, dt: float, n_steps: int,
         mid = th + 0.5 * dth
         x += ds * math.cos(mid)
         y += ds * math.sin(mid)
-        th = _wrap(th + dth)
+        th = wrap_scalar(th + dth)
         motion[step] = (ds, dth)
         # --- kidnaps: the world moves the robot, the wheels do not turn
         while ki < len(kid_steps) and kid_steps[ki][0] <= step + 1:
             k = kid_steps[ki][1]
-            x, y, th = x + k.dx, y + k.dy, _wrap(th + k.dtheta)
+            x, y, th = x + k.dx, y + k.dy, wrap_scalar(th + k.dtheta)
             kidnapped[step] = True
             ki += 1
     return Trajectory(poses, motion, kidnapped)
