@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from hypothesis import given, settings
+import pytest
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from houghloc import HoughConfig, observe_lines
@@ -29,9 +30,15 @@ def angle_diff(a: float, b: float) -> float:
     return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
 
 
-def test_vote_matches_naive_double_loop() -> None:
-    grid = make_grid(CFG)
-    pts = np.random.default_rng(3).uniform(-9, 9, (60, 2))
+@pytest.mark.parametrize(("config", "reach"), [
+    (CFG, 9.0),  # every point within ρ_max
+    (CFG, 30.0),  # points beyond ρ_max, whose far votes must be dropped
+    (HoughConfig(theta_step_deg=7.0, rho_step=0.25, rho_max=6.0, rho_margin_cells=3), 8.0),
+])
+def test_vote_matches_naive_double_loop(config: HoughConfig, reach: float) -> None:
+    grid = make_grid(config)
+    assert grid.n_theta % 2 == 0  # θ + π is a row: the half-circle voting relies on it
+    pts = np.random.default_rng(3).uniform(-reach, reach, (60, 2))
     naive = np.zeros((grid.n_theta, grid.n_rho), dtype=int)
     for x, y in pts:
         for i, th in enumerate(grid.thetas):
@@ -39,6 +46,25 @@ def test_vote_matches_naive_double_loop() -> None:
             if 0 <= j < grid.n_rho:
                 naive[i, j] += 1
     np.testing.assert_array_equal(vote(pts, grid), naive)
+
+
+@settings(max_examples=40, deadline=None)
+@given(gap=st.floats(0.2, 3.0), n_left=st.integers(5, 40), n_right=st.integers(1, 40))
+def test_a_line_splits_exactly_at_gaps_wider_than_piece_gap(gap, n_left, n_right) -> None:
+    """Two collinear runs of points 5 cm apart, separated by ``gap``: one piece if the gap is at
+    most ``piece_gap``, else two, and a run with fewer than ``min_piece_points`` is dropped."""
+    config = HoughConfig(min_line_length=0.0)
+    assume(abs(gap - config.piece_gap) > 1e-6)  # at the threshold itself rounding decides
+    s = np.concatenate((np.arange(n_left) * 0.05, (n_left - 1) * 0.05 + gap
+                        + np.arange(n_right) * 0.05))
+    pts = np.column_stack((s - 1.0, np.full(len(s), 2.0)))  # the line y = 2
+    lines = refine_lines(pts, np.array([np.pi / 2]), np.array([2.0]), config)
+    assert len(lines) == 1
+    split = gap > config.piece_gap + 1e-9
+    kept = n_left + (n_right if not split or n_right >= config.min_piece_points else 0)
+    if split and n_left < config.min_piece_points:
+        kept -= n_left
+    assert int(lines.n[0]) == kept
 
 
 @settings(max_examples=60, deadline=None)

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from fusion.sim import (
@@ -17,7 +17,8 @@ from fusion.sim import (
     place_obstacles_near,
     random_free_pose,
 )
-from houghloc import HoughConfig, SegmentMap, localize_scan
+from houghloc import HoughConfig, SegmentMap, localize_scan, observe_lines
+from houghloc.matching import associate, reassociate
 from houghloc.geometry import ranges_to_points, wrap_angle
 
 LASER = LaserConfig(sigma=0.01)
@@ -195,3 +196,30 @@ def test_grid_only_mode_is_the_papers_precision(robocup) -> None:
             errs.append(math.hypot(*(c.pose[:2] - true[:2])))
     assert len(errs) >= 10
     assert 0.005 < np.median(errs) < 0.1  # grid-limited: coarser than refined, within a cell
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=st.floats(-3.0, 3.0), y=st.floats(-1.5, 1.5), theta=st.floats(-math.pi, math.pi),
+       step=st.tuples(st.floats(-0.08, 0.08), st.floats(-0.08, 0.08), st.floats(-0.04, 0.04)))
+def test_second_matching_pass_equals_a_fresh_association_at_the_moved_pose(
+        robocup, x, y, theta, step) -> None:
+    """Re-gating moves the first pass's residuals with the correction (references are linear in
+    the pose); it must agree with associating from scratch at the moved pose."""
+    true = np.array([x, y, theta])
+    scan = laser_scan(robocup, true, np.random.default_rng(1), LASER)
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0)
+    _, _, lines = observe_lines(points, HoughConfig())
+    cfg, cov = HoughConfig(), np.diag([0.02**2, 0.02**2, math.radians(1.0) ** 2])
+    first, moved = true + [0.05, -0.05, 0.02], true + [0.05, -0.05, 0.02] + np.array(step)
+    refs = robocup.references(first, 12.0)
+    again = reassociate(associate(lines, refs, first, cov, cfg), lines, refs, moved,
+                        moved - first, cov, cfg)
+    fresh_refs = robocup.references(moved, 12.0)
+    assume(np.array_equal(fresh_refs.line, refs.line))  # the same walls in view from both
+    assume(np.allclose(fresh_refs.beta, refs.beta))  # no wall changed side (β would turn by π)
+    fresh = associate(lines, fresh_refs, moved, cov, cfg)
+    assume(len(fresh) > 0)
+    np.testing.assert_array_equal(again.line, fresh.line)
+    np.testing.assert_array_equal(refs.line[again.ref], fresh_refs.line[fresh.ref])
+    np.testing.assert_allclose(again.residual, fresh.residual, atol=1e-9)
+    np.testing.assert_allclose(again.d2, fresh.d2, rtol=1e-7, atol=1e-9)
