@@ -18,8 +18,8 @@ from fusion.sim import (
     random_free_pose,
 )
 from houghloc import HoughConfig, SegmentMap, localize_scan, observe_lines
-from houghloc.matching import associate, reassociate
 from houghloc.geometry import ranges_to_points, wrap_angle
+from houghloc.matching import associate, reassociate
 
 LASER = LaserConfig(sigma=0.01)
 
