@@ -43,7 +43,21 @@ class Displacement:
     unobservable: NDArray[np.float64]  # 3×(3−rank)
     chi2: float  # Σ post-fit squared Mahalanobis residuals
     dof: int  # 2·matches − rank
-    per_match: NDArray[np.float64]  # each match's share of chi2
+    matches: Matches | None = None
+    beta: NDArray[np.float64] | None = None
+
+    @property
+    def per_match(self) -> NDArray[np.float64]:
+        """Each match's share of ``chi2``: (r − JΔ)ᵀ C⁻¹ (r − JΔ) (computed when asked: only the
+        outlier test needs it)."""
+        if self.matches is None or len(self.matches) == 0:
+            return np.zeros(0)
+        c, r = self.matches.cov, self.matches.residual
+        post_0 = r[:, 0] + self.delta[2]  # the residual after the correction: r − J Δ
+        post_1 = r[:, 1] + np.cos(self.beta) * self.delta[0] + np.sin(self.beta) * self.delta[1]
+        det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2
+        return (c[:, 1, 1] * post_0**2 - 2 * c[:, 0, 1] * post_0 * post_1
+                + c[:, 0, 0] * post_1**2) / det
 
 
 def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
@@ -52,7 +66,7 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
     if len(matches) == 0:
         z = np.zeros((3, 0))
         return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
-                            z, np.eye(3), 0.0, 0, np.zeros(0))
+                            z, np.eye(3), 0.0, 0)
     # Per match, with n = (cos β, sin β), W = C⁻¹ = [[w00, w01], [w01, w11]] and residual r:
     # Jᵀ W J = [[w11 n nᵀ, w01 n], [w01 nᵀ, w00]],
     # Jᵀ W r = [−n (w01 r₀ + w11 r₁), −(w00 r₀ + w01 r₁)]; one column sum gives all entries.
@@ -62,10 +76,11 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
     nx, ny = np.cos(beta), np.sin(beta)
     r0, r1 = matches.residual[:, 0], matches.residual[:, 1]
     wr = w01 * r0 + w11 * r1
+    wr0 = w00 * r0 + w01 * r1
     terms = np.array((w11 * nx * nx, w11 * nx * ny, w11 * ny * ny, w01 * nx, w01 * ny, w00,
-                      nx * wr, ny * wr, w00 * r0 + w01 * r1)).sum(axis=1)
+                      nx * wr, ny * wr, wr0, r0 * wr0 + r1 * wr)).sum(axis=1)
     info = terms[_INFO_LAYOUT]
-    b = -terms[6:]
+    b = -terms[6:9]
 
     # Observable translation directions: eigenvectors of the Schur complement
     # Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out), a symmetric 2×2 solved in closed form.
@@ -91,10 +106,8 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         delta = u @ (cov_u @ (u.T @ b))
         cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
         cov = 0.5 * (cov + cov.T)
-    post_0 = r0 + delta[2]  # residual after the correction: r − J Δ
-    post_1 = r1 + nx * delta[0] + ny * delta[1]
-    per_match = w00 * post_0**2 + 2 * w01 * post_0 * post_1 + w11 * post_1**2
-    chi2_total = float(per_match.sum())
+    # post-fit χ² = min over Δ of Σ (r − JΔ)ᵀ W (r − JΔ) = rᵀWr − bᵀΔ (normal equations)
+    chi2_total = max(float(terms[9] - b @ delta), 0.0)
     rank = u.shape[1]
     return Displacement(delta, cov, info, rank, u, v, chi2_total,
-                        max(2 * len(matches) - rank, 0), per_match)
+                        max(2 * len(matches) - rank, 0), matches, beta)
