@@ -95,11 +95,14 @@ def inverse_3x3(m: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverse of a 3×3 matrix by its adjugate (cofactors over the determinant).
 
     The per-scan covariances are 3×3; written out, the inverse costs a few float operations where
-    ``np.linalg.inv`` costs its general LAPACK call. For the SPD matrices it is used on here.
+    ``np.linalg.inv`` costs its general LAPACK call. Raises ``LinAlgError`` when singular, as
+    ``np.linalg.inv`` does.
     """
     (a, b, c), (d, e, f), (g, h, i) = m.tolist()
     co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * co_a + b * co_b + c * co_c
+    if det == 0.0 or not math.isfinite(det):
+        raise np.linalg.LinAlgError(f"singular or non-finite 3×3 matrix (determinant {det})")
     return np.array(((co_a, c * h - b * i, b * f - c * e),
                      (co_b, a * i - c * g, c * d - a * f),
                      (co_c, b * g - a * h, a * e - b * d))) / det

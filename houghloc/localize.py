@@ -24,6 +24,7 @@ from houghloc.segment_map import References, SegmentMap
 from houghloc.transform import HoughGrid, make_grid, vote
 
 _DEFAULT_CONFIG = HoughConfig()
+_EYE3 = np.eye(3)
 
 
 @dataclass
@@ -149,8 +150,9 @@ def localize_scan(
         if disp.rank == 0 or len(matches.ambiguous_lines) == 0:
             break  # nothing left to resolve: the estimate is linear, one solve is exact
         # re-match with the prior sharpened by this scan's information: the gates shrink and
-        # lines that fitted two references may now fit one
-        cov = inverse_3x3(inverse_3x3(prior) + disp.information)
+        # lines that fitted two references may now fit one. (P⁻¹ + Λ)⁻¹ = (I + PΛ)⁻¹P holds for
+        # a singular P too.
+        cov = inverse_3x3(_EYE3 + prior @ disp.information) @ prior
         matches = reassociate(matches, lines, refs, _apply(guess, offset), offset - base, cov,
                               config)
         base = offset

@@ -182,6 +182,19 @@ def test_bad_arguments_raise_clear_errors(robocup) -> None:
         localize_scan(np.zeros((10, 2)), robocup, (0, 0))
 
 
+@pytest.mark.parametrize("pose_cov", [np.zeros((3, 3)), np.diag([0.04, 0.0, 1e-4]),
+                                      np.diag([1e6, 1e6, 10.0])])
+def test_degenerate_pose_covariances_give_finite_results(robocup, pose_cov) -> None:
+    """A guess claimed exact (zero or singular covariance) or hopelessly vague: never a NaN or an
+    exception, whatever the result."""
+    true = np.array([1.0, 0.5, 0.3])
+    scan = laser_scan(robocup, true, np.random.default_rng(2), LASER)
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0)
+    c = localize_scan(points, robocup, true + [0.03, -0.02, 0.01], pose_cov=pose_cov)
+    assert np.isfinite(c.pose).all() and np.isfinite(c.cov).all()
+    assert c.ok or c.reason
+
+
 def test_grid_only_mode_is_the_papers_precision(robocup) -> None:
     """Without refinement the result is bounded by the grid (the paper's 3° × 10 cm)."""
     rng = np.random.default_rng(5)
