@@ -385,7 +385,7 @@ class PoseTracker:
             k = basis.shape[1] if basis.ndim == 2 else 0
             if basis.shape[0] != 3 or not 1 <= k <= 3:
                 raise ValueError(f"basis must be 3×k with k in 1..3, got shape {basis.shape}")
-            if not np.allclose(basis.T @ basis, np.eye(k), atol=1e-6):
+            if np.abs(basis.T @ basis - np.eye(k)).max() > 1e-6:
                 raise ValueError("basis columns must be orthonormal")
         return _Measurement(z, r, basis)
 
