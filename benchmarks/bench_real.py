@@ -1,6 +1,7 @@
 """Localization on the real logs (Intel lab, Freiburg 079, ACES) end to end, without Rerun.
 
     python -m benchmarks.bench_real [--only intel|fr079|aces] [--scans N]
+    python -m benchmarks.bench_real --build-maps [--only …]   # rebuild configs/maps + pictures
 
 For each dataset: houghloc (odometry + Hough fixes in the EKF) against the GMapping reference
 poses (ATE RMSE / max, lost = > 0.3 m or > 5°), the odometry alone (SE(2)-aligned to the
@@ -57,6 +58,34 @@ def datasets() -> list[Dataset]:
         Dataset("aces", DATA / "aces" / "aces-corrected.log.gz", ROOT / "configs/maps/aces.yaml",
                 ROOT / "configs/aces-laser.yaml"),
     ]
+
+
+MAP_SOURCES = {  # the corrected log each map is built from, and who recorded it
+    "intel": ("intel/intel.gfs.log", "Dirk Hähnel (Intel Research Lab Seattle)"),
+    "fr079": ("fr079/freiburg-079-corrected.log.gz", "Cyrill Stachniss (Freiburg building 079)"),
+    "aces": ("aces/aces-corrected.log.gz", "Patrick Beeson (ACES, UT Austin)"),
+}
+
+
+def build_real_map(name: str, out_yaml: Path, png: Path | None = None):
+    """The segment map of one building from its corrected log (the builder's defaults), written
+    to ``out_yaml`` with an attribution header, and its picture to ``png``."""
+    import yaml
+
+    from fusion.mapping import extract_segments, occupancy_from_log, render_map_png
+
+    source, recorder = MAP_SOURCES[name]
+    grid = occupancy_from_log(DATA / source)
+    segment_map = extract_segments(grid, name=name)
+    header = (f"# Segment map of the {name} building, built by `python -m benchmarks.bench_real "
+              f"--build-maps`\n# (fusion.mapping, builder defaults) from the corrected log in "
+              f"../shared/data (GMapping poses).\n# Data: Kümmerle et al. 2009 via the Radish "
+              f"repository;\n# recorded by {recorder}.\n")
+    body = yaml.safe_dump(segment_map.to_dict(), sort_keys=False, width=120)
+    out_yaml.write_text(header + body)
+    if png is not None:
+        render_map_png(grid, segment_map, png)
+    return segment_map
 
 
 def reference_poses(path: Path):
@@ -218,9 +247,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--only", choices=["intel", "fr079", "aces"], action="append")
     parser.add_argument("--scans", type=int, help="only the first N scans of each log")
+    parser.add_argument("--build-maps", action="store_true",
+                        help="rebuild configs/maps/<name>.yaml and docs/images/map-<name>.png")
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         print(f"bench_real: skipped — the real datasets are not in {DATA}")
+        return 0
+    if args.build_maps:
+        for name in MAP_SOURCES:
+            if not args.only or name in args.only:
+                m = build_real_map(name, ROOT / f"configs/maps/{name}.yaml",
+                                   ROOT / f"docs/images/map-{name}.png")
+                print(f"{name}: {len(m)} segments on {m.n_lines} lines")
         return 0
     rows = []
     for ds in datasets():
