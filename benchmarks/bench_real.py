@@ -88,16 +88,49 @@ def build_real_map(name: str, out_yaml: Path, png: Path | None = None):
     return segment_map
 
 
-def reference_poses(path: Path):
-    """The corrected poses a CARMEN log attaches to its scans (Scan.reference), as a Trajectory."""
+def reference_poses(path: Path, scans: list | None = None):
+    """The corrected poses a CARMEN log attaches to its scans (Scan.reference), as a Trajectory.
+
+    With ``scans`` (the raw log's, when the reference comes from another file), each reference
+    pose takes the stamp of the raw scan with the same ranges: the reference's stamps have six
+    significant digits (1–10 ms) while the raw log delivers scans in bursts 1 ms apart, turning
+    on the spot by several degrees from one to the next (Intel: 7 of the 345 references in the
+    .mat's span are nearer in time to a neighbour of their own scan)."""
     from fusion.evaluation import Trajectory
     from fusion.events import Scan
     from fusion.io import open_log
 
     events, _ = open_log(path)
-    rows = [(e.t, *e.reference) for e in events if isinstance(e, Scan) and e.reference]
-    arr = np.asarray(rows, dtype=float).reshape(-1, 4)
-    return Trajectory(arr[:, 0], arr[:, 1:])
+    ref_scans = [e for e in events if isinstance(e, Scan) and e.reference]
+    times = np.array([e.t for e in ref_scans], dtype=float)
+    if scans:
+        times = _stamps_of_identical_scans(ref_scans, times, scans)
+    arr = np.asarray([e.reference for e in ref_scans], dtype=float).reshape(-1, 3)
+    order = np.argsort(times, kind="stable")
+    return Trajectory(times[order], arr[order])
+
+
+def _stamps_of_identical_scans(ref_scans: list, times: np.ndarray, scans: list,
+                               window: float = 0.02, tolerance: float = 0.011) -> np.ndarray:
+    """``times`` with each entry replaced by the stamp of the raw scan within ``window`` seconds
+    whose ranges equal the reference scan's (to the printed precision, ``tolerance`` m); kept
+    when there is no such scan."""
+    raw_t = np.array([s.t if s.stamp is None else s.stamp for s in scans], dtype=float)
+    order = np.argsort(raw_t, kind="stable")
+    sorted_t = raw_t[order]
+    out = times.copy()
+    for k, ref in enumerate(ref_scans):
+        lo, hi = np.searchsorted(sorted_t, (times[k] - window, times[k] + window))
+        candidates = order[lo:hi]
+        if len(candidates) == 0:
+            continue
+        r = np.asarray(ref.ranges, dtype=float)
+        diff = [np.max(np.abs(np.asarray(scans[i].ranges, dtype=float) - r))
+                if len(scans[i].ranges) == len(r) else np.inf for i in candidates]
+        best = int(np.argmin(diff))
+        if diff[best] <= tolerance:
+            out[k] = raw_t[candidates[best]]
+    return out
 
 
 def from_first_scan(events: Iterable, limit: int | None = None) -> Iterator:
@@ -149,10 +182,11 @@ def run(ds: Dataset, limit: int | None = None, config: Path | None = None) -> Ou
     from fusion.localizer import Localizer
     from houghloc import SegmentMap
 
-    ref = reference_poses(ds.reference or ds.log)
     segment_map = SegmentMap.from_yaml(ds.map)
     events, _ = open_log(ds.log)
     events = list(from_first_scan(events, limit))
+    scans = [e for e in events if isinstance(e, Scan)] if ds.reference else None
+    ref = reference_poses(ds.reference or ds.log, scans)
     first = next(e for e in events if isinstance(e, Scan))
     start = ds.initial_pose
     if start is None:

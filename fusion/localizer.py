@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from fusion.ambiguity import AmbiguityManager, State, visible_parallel_spacing
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
+from fusion.motion import OdometryCalibration
 from fusion.tracker import PoseTracker
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
@@ -65,6 +66,8 @@ class Localizer:
         self.tracker = PoseTracker(pose, fc.initial_cov, fc.motion, fc.history_seconds,
                                    fc.gate_probability, fc.delayed_updates)
         self.stats = LocalizerStats()
+        calibration = OdometryCalibration(fc.motion.translation_scale, fc.motion.rotation_scale)
+        self._calibrate = None if calibration.identity else calibration
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
         self.logger.log_map(map)
         self._start_reason = "initial pose given"
@@ -88,7 +91,10 @@ class Localizer:
         return self.tracker.cov
 
     def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
-        """Predict with the odometry increment since the last reading (its frame is arbitrary)."""
+        """Predict with the odometry increment since the last reading (its frame is arbitrary),
+        after removing the configured scale errors (``filter.motion.*_scale``)."""
+        if self._calibrate is not None:
+            x, y, theta = self._calibrate(x, y, theta)
         self.tracker.on_odometry(t, x, y, theta)
         self.logger.log_odometry(t, (x, y, theta))
 
