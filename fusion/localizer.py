@@ -130,7 +130,7 @@ class Localizer:
         self.stats.seconds["hough"] += t1 - t0
         if fix.ambiguous:
             estimate = self._finish(t, "ambiguous", fix, None, sensor, points)
-        elif fix.rank == 0:
+        elif fix.rank == 0 or _matched_lines(fix) < cfg.min_fix_lines:
             estimate = self._finish(t, "no-fix", fix, None, sensor, points)
         else:
             newest = self.tracker.time
@@ -191,6 +191,10 @@ class Localizer:
         except KeyError:
             known = ", ".join(self.config.sensors)
             raise KeyError(f"sensor {name!r} is not configured (configured: {known})") from None
+
+
+def _matched_lines(fix: ScanCorrection) -> int:
+    return 0 if fix.matches is None else len(fix.matches)
 
 
 def _to_base(points: NDArray, cfg: SensorConfig) -> NDArray:
