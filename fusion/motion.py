@@ -77,25 +77,30 @@ class OdometryCalibration:
     def __init__(self, translation_scale: float = 1.0, rotation_scale: float = 1.0) -> None:
         self.translation_scale = translation_scale
         self.rotation_scale = rotation_scale
-        self._raw: NDArray[np.float64] | None = None
-        self._calibrated: NDArray[np.float64] | None = None
+        self._raw: tuple[float, float, float] | None = None
+        self._calibrated: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     @property
     def identity(self) -> bool:
         return self.translation_scale == 1.0 and self.rotation_scale == 1.0
 
     def __call__(self, x: float, y: float, theta: float) -> tuple[float, float, float]:
-        """The calibrated odometry pose for a raw reading (the first reading is kept as is)."""
-        raw = np.array([x, y, theta], dtype=float)
-        if self._raw is None or self._calibrated is None:
-            self._raw, self._calibrated = raw, raw.copy()
-        else:
-            dx, dy, dth = relative(self._raw, raw)
-            k = self.translation_scale
-            step = (k * dx, k * dy, self.rotation_scale * dth)
-            self._raw, self._calibrated = raw, compose(self._calibrated, step)
-        c = self._calibrated
-        return float(c[0]), float(c[1]), float(c[2])
+        """The calibrated odometry pose for a raw reading (the first reading is kept as is).
+        Plain floats: this runs once per odometry reading."""
+        if self._raw is None:
+            self._raw = self._calibrated = (float(x), float(y), float(theta))
+            return self._calibrated
+        px, py, pth = self._raw
+        c, s = math.cos(pth), math.sin(pth)
+        gx, gy = x - px, y - py
+        k = self.translation_scale
+        dx, dy = k * (c * gx + s * gy), k * (c * gy - s * gx)  # (⊖raw_prev ⊕ raw), scaled
+        dth = self.rotation_scale * _wrap(theta - pth)
+        cx, cy, cth = self._calibrated
+        c, s = math.cos(cth), math.sin(cth)
+        self._raw = (float(x), float(y), float(theta))
+        self._calibrated = (cx + c * dx - s * dy, cy + s * dx + c * dy, _wrap(cth + dth))
+        return self._calibrated
 
 
 def increment(odom_prev: ArrayLike, odom_next: ArrayLike) -> NDArray[np.float64]:
