@@ -1,6 +1,7 @@
 """Localization on the real logs (Intel lab, Freiburg 079, ACES) end to end, without Rerun.
 
     python -m benchmarks.bench_real [--only intel|fr079|aces] [--scans N]
+    python -m benchmarks.bench_real --build-maps [--only …]   # rebuild configs/maps + pictures
 
 For each dataset: houghloc (odometry + Hough fixes in the EKF) against the GMapping reference
 poses (ATE RMSE / max, lost = > 0.3 m or > 5°), the odometry alone (SE(2)-aligned to the
@@ -59,16 +60,77 @@ def datasets() -> list[Dataset]:
     ]
 
 
-def reference_poses(path: Path):
-    """The corrected poses a CARMEN log attaches to its scans (Scan.reference), as a Trajectory."""
+MAP_SOURCES = {  # the corrected log each map is built from, and who recorded it
+    "intel": ("intel/intel.gfs.log", "Dirk Hähnel (Intel Research Lab Seattle)"),
+    "fr079": ("fr079/freiburg-079-corrected.log.gz", "Cyrill Stachniss (Freiburg building 079)"),
+    "aces": ("aces/aces-corrected.log.gz", "Patrick Beeson (ACES, UT Austin)"),
+}
+
+
+def build_real_map(name: str, out_yaml: Path, png: Path | None = None):
+    """The segment map of one building from its corrected log (the builder's defaults), written
+    to ``out_yaml`` with an attribution header, and its picture to ``png``."""
+    import yaml
+
+    from fusion.mapping import extract_segments, occupancy_from_log, render_map_png
+
+    source, recorder = MAP_SOURCES[name]
+    grid = occupancy_from_log(DATA / source)
+    segment_map = extract_segments(grid, name=name)
+    header = (f"# Segment map of the {name} building, built by `python -m benchmarks.bench_real "
+              f"--build-maps`\n# (fusion.mapping, builder defaults) from the corrected log in "
+              f"../shared/data (GMapping poses).\n# Data: Kümmerle et al. 2009 via the Radish "
+              f"repository;\n# recorded by {recorder}.\n")
+    body = yaml.safe_dump(segment_map.to_dict(), sort_keys=False, width=120)
+    out_yaml.write_text(header + body)
+    if png is not None:
+        render_map_png(grid, segment_map, png)
+    return segment_map
+
+
+def reference_poses(path: Path, scans: list | None = None):
+    """The corrected poses a CARMEN log attaches to its scans (Scan.reference), as a Trajectory.
+
+    With ``scans`` (the raw log's, when the reference comes from another file), each reference
+    pose takes the stamp of the raw scan with the same ranges: the reference's stamps have six
+    significant digits (1–10 ms) while the raw log delivers scans in bursts 1 ms apart, turning
+    on the spot by several degrees from one to the next (Intel: 7 of the 345 references in the
+    .mat's span are nearer in time to a neighbour of their own scan)."""
     from fusion.evaluation import Trajectory
     from fusion.events import Scan
     from fusion.io import open_log
 
     events, _ = open_log(path)
-    rows = [(e.t, *e.reference) for e in events if isinstance(e, Scan) and e.reference]
-    arr = np.asarray(rows, dtype=float).reshape(-1, 4)
-    return Trajectory(arr[:, 0], arr[:, 1:])
+    ref_scans = [e for e in events if isinstance(e, Scan) and e.reference]
+    times = np.array([e.t for e in ref_scans], dtype=float)
+    if scans:
+        times = _stamps_of_identical_scans(ref_scans, times, scans)
+    arr = np.asarray([e.reference for e in ref_scans], dtype=float).reshape(-1, 3)
+    order = np.argsort(times, kind="stable")
+    return Trajectory(times[order], arr[order])
+
+
+def _stamps_of_identical_scans(ref_scans: list, times: np.ndarray, scans: list,
+                               window: float = 0.02, tolerance: float = 0.011) -> np.ndarray:
+    """``times`` with each entry replaced by the stamp of the raw scan within ``window`` seconds
+    whose ranges equal the reference scan's (to the printed precision, ``tolerance`` m); kept
+    when there is no such scan."""
+    raw_t = np.array([s.t if s.stamp is None else s.stamp for s in scans], dtype=float)
+    order = np.argsort(raw_t, kind="stable")
+    sorted_t = raw_t[order]
+    out = times.copy()
+    for k, ref in enumerate(ref_scans):
+        lo, hi = np.searchsorted(sorted_t, (times[k] - window, times[k] + window))
+        candidates = order[lo:hi]
+        if len(candidates) == 0:
+            continue
+        r = np.asarray(ref.ranges, dtype=float)
+        diff = [np.max(np.abs(np.asarray(scans[i].ranges, dtype=float) - r))
+                if len(scans[i].ranges) == len(r) else np.inf for i in candidates]
+        best = int(np.argmin(diff))
+        if diff[best] <= tolerance:
+            out[k] = raw_t[candidates[best]]
+    return out
 
 
 def from_first_scan(events: Iterable, limit: int | None = None) -> Iterator:
@@ -120,10 +182,11 @@ def run(ds: Dataset, limit: int | None = None, config: Path | None = None) -> Ou
     from fusion.localizer import Localizer
     from houghloc import SegmentMap
 
-    ref = reference_poses(ds.reference or ds.log)
     segment_map = SegmentMap.from_yaml(ds.map)
     events, _ = open_log(ds.log)
     events = list(from_first_scan(events, limit))
+    scans = [e for e in events if isinstance(e, Scan)] if ds.reference else None
+    ref = reference_poses(ds.reference or ds.log, scans)
     first = next(e for e in events if isinstance(e, Scan))
     start = ds.initial_pose
     if start is None:
@@ -218,9 +281,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--only", choices=["intel", "fr079", "aces"], action="append")
     parser.add_argument("--scans", type=int, help="only the first N scans of each log")
+    parser.add_argument("--build-maps", action="store_true",
+                        help="rebuild configs/maps/<name>.yaml and docs/images/map-<name>.png")
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         print(f"bench_real: skipped — the real datasets are not in {DATA}")
+        return 0
+    if args.build_maps:
+        for name in MAP_SOURCES:
+            if not args.only or name in args.only:
+                m = build_real_map(name, ROOT / f"configs/maps/{name}.yaml",
+                                   ROOT / f"docs/images/map-{name}.png")
+                print(f"{name}: {len(m)} segments on {m.n_lines} lines")
         return 0
     rows = []
     for ds in datasets():

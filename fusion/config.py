@@ -37,6 +37,9 @@ class SensorConfig(_Strict):
     min_range: float = Field(0.05, ge=0.0)
     max_range: float = Field(20.0, gt=0.0, description="returns at or beyond mean no return")
     hough: HoughConfig = HoughConfig()
+    min_fix_lines: int = Field(
+        1, ge=1, description="matched lines a fix needs to be used: a single line cannot be "
+        "checked against another, and in clutter it is often matched to a near-parallel wall")
 
 
 class FilterConfig(_Strict):

@@ -18,6 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 from fusion.ambiguity import AmbiguityManager, State, visible_parallel_spacing
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
+from fusion.motion import OdometryCalibration
 from fusion.tracker import PoseTracker
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
@@ -65,6 +66,8 @@ class Localizer:
         self.tracker = PoseTracker(pose, fc.initial_cov, fc.motion, fc.history_seconds,
                                    fc.gate_probability, fc.delayed_updates)
         self.stats = LocalizerStats()
+        calibration = OdometryCalibration(fc.motion.translation_scale, fc.motion.rotation_scale)
+        self._calibrate = None if calibration.identity else calibration
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
         self.logger.log_map(map)
         self._start_reason = "initial pose given"
@@ -88,7 +91,10 @@ class Localizer:
         return self.tracker.cov
 
     def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
-        """Predict with the odometry increment since the last reading (its frame is arbitrary)."""
+        """Predict with the odometry increment since the last reading (its frame is arbitrary),
+        after removing the configured scale errors (``filter.motion.*_scale``)."""
+        if self._calibrate is not None:
+            x, y, theta = self._calibrate(x, y, theta)
         self.tracker.on_odometry(t, x, y, theta)
         self.logger.log_odometry(t, (x, y, theta))
 
@@ -124,7 +130,7 @@ class Localizer:
         self.stats.seconds["hough"] += t1 - t0
         if fix.ambiguous:
             estimate = self._finish(t, "ambiguous", fix, None, sensor, points)
-        elif fix.rank == 0:
+        elif fix.rank == 0 or _matched_lines(fix) < cfg.min_fix_lines:
             estimate = self._finish(t, "no-fix", fix, None, sensor, points)
         else:
             newest = self.tracker.time
@@ -185,6 +191,10 @@ class Localizer:
         except KeyError:
             known = ", ".join(self.config.sensors)
             raise KeyError(f"sensor {name!r} is not configured (configured: {known})") from None
+
+
+def _matched_lines(fix: ScanCorrection) -> int:
+    return 0 if fix.matches is None else len(fix.matches)
 
 
 def _to_base(points: NDArray, cfg: SensorConfig) -> NDArray:

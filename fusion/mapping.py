@@ -28,6 +28,11 @@ The pipeline, one function per stage:
    through free space; a line through clutter has none). Runs shorter than ``min_length`` are
    dropped. Segments of one group lie exactly on one line, so the segment map
    merges them into one Hough point.
+6. **Duplicates.** A thick or slightly bent wall can still come out as two or more lines a few
+   centimetres and degrees apart, each holding part of its cells; the localizer would find two
+   map lines in one observed wall's gate. Lines of one face (within ``duplicate_angle`` and
+   ``duplicate_offset``, free space on the same side) are merged onto their length-weighted
+   fit; the two faces of a thin wall stay apart.
 
 :func:`build_map` chains the stages and writes the map YAML and a PNG preview (segments over the
 grid, metre axes). :func:`endpoint_coverage` scores a map against scan endpoints.
@@ -465,6 +470,8 @@ def extract_segments(
     bridge_gap: float = 0.25,
     occlusion_gap: float = 1.0,
     door_gap: float = 2.0,
+    duplicate_offset: float = 0.15,
+    duplicate_angle: float = math.radians(6.0),
     name: str = "map",
 ) -> SegmentMap:
     """Wall segments of an occupancy grid (see the module docstring for the stages).
@@ -474,7 +481,10 @@ def extract_segments(
     ``occlusion_gap`` are closed only where the grid has no free cell (an occluded stretch of
     wall, not a doorway); longer gaps, and any gap with free space, split the wall into separate
     segments that still share one line when within ``door_gap``. Segments shorter than
-    ``min_length`` are dropped. All segments are walls, with ids ``w0, w1, …`` (longest first).
+    ``min_length`` are dropped. Near-duplicate lines of one wall face (within
+    ``duplicate_angle``, both ends within ``duplicate_offset``, free space on the same side, at
+    most ``door_gap`` apart along the wall) are merged onto one line. All segments are walls,
+    with ids ``w0, w1, …`` (longest first).
     """
     points, _cells = grid.occupied_points()
     if len(points) < 2:
@@ -487,10 +497,12 @@ def extract_segments(
     candidates = _refine(candidates, points, tree, (_CANDIDATE_BLUR_CELLS + 1.5) * res, 2 * res)
     candidates = _refine(candidates, points, tree, offset_tol_cells * res, 2 * res)
     groups = _group_collinear(candidates, angle_tol, offset_tol_cells * res, door_gap)
-    segments = _segments_on_lines(
+    segments, facing = _segments_on_lines(
         groups, grid, points, tree, support_tol=offset_tol_cells * res,
         bridge_gap=bridge_gap, occlusion_gap=occlusion_gap, min_length=min_length,
     )
+    segments = _merge_duplicates(segments, facing, duplicate_angle, duplicate_offset, door_gap,
+                                 bridge_gap)
     if len(segments) == 0:
         raise ValueError(f"no wall segment of at least {min_length} m found in the grid")
     order = np.argsort(-segments.length, kind="stable")
@@ -691,8 +703,9 @@ def _segments_on_lines(
     min_length: float,
     min_fill: float = 0.6,
     min_piece: float = 0.25,
-) -> _Lines:
-    """Occupied cells → wall lines (refitted) → runs of cells along each line → segments."""
+) -> tuple[_Lines, NDArray[np.float64]]:
+    """Occupied cells → wall lines (refitted) → runs of cells along each line → segments, and
+    each segment's facing: the unit normal pointing to the side it is seen from (free space)."""
     line, point, _s, dist = _support(groups, points, tree, support_tol, margin=occlusion_gap)
     line, point = _keep_best_of_parallel(groups, line, point, dist)
     moments = _Moments.of(line, points[point], len(groups))
@@ -712,8 +725,11 @@ def _segments_on_lines(
     pieces = _with_free_side(pieces, grid, centroid, direction)
     runs = _join_occluded_gaps(pieces, grid, centroid, direction, occlusion_gap)
     keep = runs.length >= min_length
-    return _Lines(centroid[runs.line[keep]], direction[runs.line[keep]], runs.s0[keep],
-                  runs.s1[keep])
+    runs = _Runs(runs.line[keep], runs.s0[keep], runs.s1[keep])
+    lines = _Lines(centroid[runs.line], direction[runs.line], runs.s0, runs.s1)
+    share = _free_side_share(runs, grid, centroid, direction)
+    facing = lines.normal * np.where(share[:, 0] >= share[:, 1], 1.0, -1.0)[:, None]
+    return lines, facing
 
 
 @dataclass(frozen=True)
@@ -754,10 +770,20 @@ def _solid_pieces(line: NDArray[np.intp], s: NDArray[np.float64], resolution: fl
 def _with_free_side(pieces: _Runs, grid: OccupancyGrid, point: NDArray[np.float64],
                     direction: NDArray[np.float64], min_share: float = 0.5) -> _Runs:
     """Keep the pieces with free space along one side: a wall face is seen through free space,
-    while a line drawn through a blob of clutter or a thick, smeared wall has none. Sampled every
-    cell along the piece, 3–6 cells out (free space keeps a clearance from the walls)."""
+    while a line drawn through a blob of clutter or a thick, smeared wall has none."""
     if len(pieces.line) == 0:
         return pieces
+    keep = _free_side_share(pieces, grid, point, direction).max(axis=1) >= min_share
+    return _Runs(pieces.line[keep], pieces.s0[keep], pieces.s1[keep])
+
+
+def _free_side_share(pieces: _Runs, grid: OccupancyGrid, point: NDArray[np.float64],
+                     direction: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Share of free samples on each side of every piece (n × 2: along +normal, along −normal),
+    sampled every cell along the piece, 3–6 cells out (free space keeps a clearance from the
+    walls)."""
+    if len(pieces.line) == 0:
+        return np.zeros((0, 2))
     res = grid.resolution
     count = np.maximum(np.ceil(pieces.length / res).astype(np.intp), 1)
     piece = np.repeat(np.arange(len(count)), count)
@@ -774,8 +800,81 @@ def _with_free_side(pieces: _Runs, grid: OccupancyGrid, point: NDArray[np.float6
             inside = grid.inside(rows, cols)
             seen_free[inside] |= grid.free[rows[inside], cols[inside]]
         share[:, side] = np.bincount(piece, weights=seen_free, minlength=len(count)) / count
-    keep = share.max(axis=1) >= min_share
-    return _Runs(pieces.line[keep], pieces.s0[keep], pieces.s1[keep])
+    return share
+
+
+def _merge_duplicates(segments: _Lines, facing: NDArray[np.float64], angle_tol: float,
+                      offset_tol: float, max_gap: float, bridge_gap: float) -> _Lines:
+    """Merge near-duplicate lines of one wall face onto one line.
+
+    A thick or slightly bent wall often yields two or more lines a few centimetres and a degree
+    or two apart, each holding part of the wall's cells. The localizer then sees two map lines
+    inside one observed wall's gate: an ambiguous match, or a fix pulled between them. Greedy,
+    longest segment first: a segment joins the first cluster whose line it follows (direction
+    within ``angle_tol``, both ends within ``offset_tol``), whose face looks the same way (the
+    two faces of a thin wall stay apart) and whose extent is at most ``max_gap`` away along
+    the line. A cluster's line is the length-weighted fit of its members; the members'
+    extents, projected on it, are united where they overlap or are at most ``bridge_gap``
+    apart, and stay separate segments of the one line otherwise (a wall with doors).
+    """
+    if len(segments) < 2:
+        return segments
+    order = np.argsort(-segments.length, kind="stable")
+    starts, ends = segments.starts, segments.ends
+    cos_tol = math.cos(angle_tol)
+    c_point = np.empty((0, 2))
+    c_dir = np.empty((0, 2))
+    c_face = np.empty((0, 2))
+    c_s = np.empty((0, 2))
+    c_mom = np.empty((0, 6))
+    members: list[list[int]] = []
+    for i in order:
+        a, b, d = starts[i], ends[i], segments.direction[i]
+        hit = np.empty(0, dtype=np.intp)
+        if len(c_point):
+            normal = np.column_stack((-c_dir[:, 1], c_dir[:, 0]))
+            off_a = np.abs(np.einsum("ij,ij->i", a - c_point, normal))
+            off_b = np.abs(np.einsum("ij,ij->i", b - c_point, normal))
+            sa = np.einsum("ij,ij->i", a - c_point, c_dir)
+            sb = np.einsum("ij,ij->i", b - c_point, c_dir)
+            gap = np.maximum(np.minimum(sa, sb) - c_s[:, 1], c_s[:, 0] - np.maximum(sa, sb))
+            match = ((np.abs(c_dir @ d) >= cos_tol) & (off_a <= offset_tol)
+                     & (off_b <= offset_tol) & (c_face @ facing[i] > 0) & (gap <= max_gap))
+            hit = np.flatnonzero(match)
+        mom = float(segments.length[i]) * _end_moments(a, b)
+        if len(hit):
+            c = hit[0]
+            members[c].append(i)
+            c_mom[c] += mom
+            c_point[c], new_dir = _fit_moments(c_mom[c])
+            c_dir[c] = new_dir if new_dir @ c_dir[c] >= 0 else -new_dir
+            ends_c = np.concatenate([(starts[k], ends[k]) for k in members[c]])
+            s_all = (ends_c - c_point[c]) @ c_dir[c]
+            c_s[c] = [s_all.min(), s_all.max()]
+        else:
+            members.append([i])
+            c_point = np.vstack((c_point, 0.5 * (a + b)))
+            c_dir = np.vstack((c_dir, d))
+            c_face = np.vstack((c_face, facing[i]))
+            half = 0.5 * float(segments.length[i])
+            c_s = np.vstack((c_s, [-half, half]))
+            c_mom = np.vstack((c_mom, mom))
+    pieces: list[tuple[int, float, float]] = []  # (cluster, s0, s1) on the cluster's line
+    for c, group in enumerate(members):
+        s_ends = np.column_stack(((starts[group] - c_point[c]) @ c_dir[c],
+                                  (ends[group] - c_point[c]) @ c_dir[c]))
+        lo, hi = s_ends.min(axis=1), s_ends.max(axis=1)
+        by = np.argsort(lo)
+        cur_lo, cur_hi = lo[by[0]], hi[by[0]]
+        for k in by[1:]:
+            if lo[k] - cur_hi > bridge_gap:
+                pieces.append((c, cur_lo, cur_hi))
+                cur_lo = lo[k]
+            cur_hi = max(cur_hi, hi[k])
+        pieces.append((c, cur_lo, cur_hi))
+    cluster = np.array([p[0] for p in pieces], dtype=np.intp)
+    return _Lines(c_point[cluster], c_dir[cluster], np.array([p[1] for p in pieces]),
+                  np.array([p[2] for p in pieces]))
 
 
 def _join_occluded_gaps(pieces: _Runs, grid: OccupancyGrid, point: NDArray[np.float64],

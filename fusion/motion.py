@@ -53,12 +53,54 @@ class OdometryMotionConfig(BaseModel):
         ge=0,
         description="below this translation the direction of travel is undefined: rot1 = 0",
     )
+    translation_scale: float = Field(
+        1.0, gt=0, description="calibration: the wheels' distance times this is the true one"
+    )
+    rotation_scale: float = Field(
+        1.0, gt=0, description="calibration: the odometry's turn times this is the true one"
+    )
     max_speed: float = Field(2.0, gt=0, description="fastest plausible translation, m/s")
     max_turn_rate: float = Field(3.0, gt=0, description="fastest plausible rotation, rad/s")
     jump_margin: float = Field(2.0, ge=1, description="tolerance factor on the limits")
     jump_min_dt: float = Field(
         0.05, gt=0, description="shorter intervals are judged as this long (timestamp jitter)"
     )
+
+
+class OdometryCalibration:
+    """Systematic odometry errors removed before filtering: each increment's translation is
+    scaled by ``translation_scale`` and its rotation by ``rotation_scale`` (wheel radii and
+    wheel base off their nominal values), and the corrected increments are chained into a new
+    odometry frame. Zero-mean noise (the α's) cannot absorb a scale error: along a corridor,
+    where only the walls' normal is observed, it becomes a drift of a few per cent."""
+
+    def __init__(self, translation_scale: float = 1.0, rotation_scale: float = 1.0) -> None:
+        self.translation_scale = translation_scale
+        self.rotation_scale = rotation_scale
+        self._raw: tuple[float, float, float] | None = None
+        self._calibrated: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def identity(self) -> bool:
+        return self.translation_scale == 1.0 and self.rotation_scale == 1.0
+
+    def __call__(self, x: float, y: float, theta: float) -> tuple[float, float, float]:
+        """The calibrated odometry pose for a raw reading (the first reading is kept as is).
+        Plain floats: this runs once per odometry reading."""
+        if self._raw is None:
+            self._raw = self._calibrated = (float(x), float(y), float(theta))
+            return self._calibrated
+        px, py, pth = self._raw
+        c, s = math.cos(pth), math.sin(pth)
+        gx, gy = x - px, y - py
+        k = self.translation_scale
+        dx, dy = k * (c * gx + s * gy), k * (c * gy - s * gx)  # (⊖raw_prev ⊕ raw), scaled
+        dth = self.rotation_scale * _wrap(theta - pth)
+        cx, cy, cth = self._calibrated
+        c, s = math.cos(cth), math.sin(cth)
+        self._raw = (float(x), float(y), float(theta))
+        self._calibrated = (cx + c * dx - s * dy, cy + s * dx + c * dy, _wrap(cth + dth))
+        return self._calibrated
 
 
 def increment(odom_prev: ArrayLike, odom_next: ArrayLike) -> NDArray[np.float64]:

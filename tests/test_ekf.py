@@ -11,7 +11,13 @@ from hypothesis import strategies as st
 from scipy.stats import chi2
 
 from fusion.ekf import PoseEKF
-from fusion.motion import OdometryMotionConfig, OdometryMotionModel, increment, interpolate
+from fusion.motion import (
+    OdometryCalibration,
+    OdometryMotionConfig,
+    OdometryMotionModel,
+    increment,
+    interpolate,
+)
 from fusion.tracker import PoseTracker
 from houghloc.geometry import compose, relative, wrap_angle
 
@@ -93,6 +99,21 @@ def test_straight_line_prediction_is_exact_without_noise():
     drive(tracker, (0.8, 0.0), seconds=2.5)
     expected = start + np.array([2.0 * math.cos(0.5), 2.0 * math.sin(0.5), 0.0])
     np.testing.assert_allclose(tracker.pose, expected, atol=1e-9)
+
+
+def test_calibration_scales_every_increment_in_any_odometry_frame():
+    # a square driven with wheels that over-report distance by 4 % and turns by 5 %
+    true_steps = [(1.0, 0.0, 0.0), (0.0, 0.0, math.pi / 2)] * 4
+    raw = [ODOM_ORIGIN]
+    for dx, dy, dth in true_steps:
+        raw.append(compose(raw[-1], (dx / 0.96, dy / 0.96, dth / 0.95)))
+    calibrate = OdometryCalibration(translation_scale=0.96, rotation_scale=0.95)
+    out = np.array([calibrate(*r) for r in raw])
+    np.testing.assert_allclose(out[0], ODOM_ORIGIN)  # the first reading anchors the frame
+    for k, step in enumerate(true_steps):
+        np.testing.assert_allclose(relative(out[k], out[k + 1]), step, atol=1e-9)
+    np.testing.assert_allclose(relative(out[0], out[-1]), 0.0, atol=1e-9)  # the square closes
+    assert OdometryCalibration().identity and not calibrate.identity
 
 
 def test_interpolation_follows_the_arc():

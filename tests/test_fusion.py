@@ -293,3 +293,20 @@ def test_peak_memory_does_not_grow_with_the_log(tmp_path: Path) -> None:
         assert scans == 600 * minutes + 1
     # Six times the log may cost a few MiB of buffers, not six times the memory of its data.
     assert peaks[60] - peaks[10] <= 8 * 1024, f"peak RSS {peaks} KiB"
+
+
+@pytest.mark.parametrize("min_fix_lines, status", [(1, "accepted"), (2, "no-fix")])
+def test_a_fix_from_one_line_is_used_only_when_allowed(min_fix_lines: int, status: str) -> None:
+    from fusion.localizer import Localizer
+    from houghloc import SegmentMap
+
+    walls = SegmentMap(np.array([[-5.0, 2.0], [4.0, -5.0]]), np.array([[5.0, 2.0], [4.0, 5.0]]))
+    config = LocalizerConfig.from_dict({"sensors": {"laser": {"min_fix_lines": min_fix_lines}}})
+    loc = Localizer(walls, config, initial_pose=(0.0, 0.0, 0.0))
+    x = np.linspace(-3.0, 3.0, 200)
+    one_wall = np.column_stack((x, np.full_like(x, 2.0)))  # only the wall at y = 2 in view
+    estimate = loc.on_points(0.0, one_wall, "laser")
+    assert estimate.status == status
+    y = np.linspace(-3.0, 3.0, 200)
+    both = np.vstack((one_wall, np.column_stack((np.full_like(y, 4.0), y))))
+    assert loc.on_points(0.1, both, "laser").status == "accepted"  # two lines: always used

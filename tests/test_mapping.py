@@ -116,6 +116,44 @@ def test_occluded_gap_is_bridged_but_a_seen_through_gap_is_not() -> None:
     assert len(extract_segments(seen)) == len(truth) + 1
 
 
+def _lines(*segments: tuple[tuple[float, float], tuple[float, float]]):
+    from fusion.mapping import _lines_from_ends
+
+    a = np.array([s[0] for s in segments], dtype=float)
+    b = np.array([s[1] for s in segments], dtype=float)
+    return _lines_from_ends(a, b)
+
+
+def test_near_duplicate_lines_of_one_face_are_merged_onto_one_line() -> None:
+    from fusion.mapping import _merge_duplicates
+
+    tilt = math.tan(math.radians(2.0))
+    lines = _lines(((0.0, 0.0), (6.0, 0.0)),             # a wall, seen from +y
+                   ((1.0, 0.05), (3.0, 0.05 + 2 * tilt)),  # the same face again: 5 cm, 2° off
+                   ((7.0, 0.04), (8.0, 0.04)),           # beyond a door, 4 cm off the line
+                   ((1.0, -0.12), (4.0, -0.12)),         # the wall's other face, seen from −y
+                   ((1.0, 0.4), (4.0, 0.4)))             # a different wall, 40 cm away
+    up, down = (0.0, 1.0), (0.0, -1.0)
+    facing = np.array([up, up, up, down, up])
+    merged = _merge_duplicates(lines, facing, math.radians(6.0), 0.15, 2.0, 0.25)
+    m = SegmentMap(merged.starts, merged.ends)
+    assert len(m) == 4  # the duplicate joined the wall; the door still splits it
+    assert m.n_lines == 3  # wall (both pieces on one line), its other face, the far wall
+    on_wall = np.abs(merged.point[:, 1]) < 0.1
+    assert on_wall.sum() == 2
+    d = merged.direction[on_wall]
+    assert np.all(np.abs(d[:, 1]) < math.sin(math.radians(1.0)))  # the long wall dominates
+    extents = sorted(zip(merged.starts[on_wall, 0], merged.ends[on_wall, 0], strict=True))
+    assert extents[0][0] == pytest.approx(0.0, abs=0.02)
+    assert extents[0][1] == pytest.approx(6.0, abs=0.02)
+    assert extents[1][0] == pytest.approx(7.0, abs=0.02)
+    assert extents[1][1] == pytest.approx(8.0, abs=0.02)
+    # Nothing to merge: unchanged.
+    single = _merge_duplicates(_lines(((0.0, 0.0), (1.0, 0.0))), np.array([up]),
+                               math.radians(6.0), 0.15, 2.0, 0.25)
+    assert len(single) == 1
+
+
 def test_empty_grid_is_an_error() -> None:
     empty = OccupancyGrid.from_masks(np.zeros((20, 20), bool), np.ones((20, 20), bool), RES)
     with pytest.raises(ValueError, match="occupied"):

@@ -1,8 +1,9 @@
 """Localization on short slices of the real logs, against the GMapping reference poses.
 
 Skipped when ../shared/data is missing. The figures asserted are what the scenario configs
-(configs/intel-laser.yaml, configs/fr079-laser.yaml) reach on these slices, with a margin; the whole
-logs are in ``python -m benchmarks.bench_real``.
+(configs/intel-laser.yaml, configs/fr079-laser.yaml, configs/aces-laser.yaml) reach with the maps
+of configs/maps on these slices, with a margin; the whole logs are in
+``python -m benchmarks.bench_real``.
 """
 
 from __future__ import annotations
@@ -40,25 +41,37 @@ def test_intel_rows_are_fed_in_order_with_their_own_stamps_kept() -> None:
 
 
 def test_intel_first_600_scans_track_the_reference() -> None:
-    # measured: ATE 5.0 cm RMSE, 9.8 cm max over 28 reference poses, relations 4.2 cm (47), 98 %
-    # of the fixes accepted, never out of tracking
+    # measured: ATE 5.8 cm RMSE, 13.5 cm max over 28 reference poses, relations 2.9 cm (47), 530
+    # of 600 fixes accepted (64 from a single line are not used), never out of tracking
     result = score(run(_need("intel"), limit=600))
     h = result["houghloc"]
     assert h["matched"] >= 20
     assert h["lost"] == 0.0
-    assert h["ate_rmse_m"] < 0.08 and h["ate_max_m"] < 0.15
-    assert h["relations"]["count"] >= 40 and h["relations"]["translation_mean_m"] < 0.074
-    assert result["statuses"].get("accepted", 0) >= 0.9 * result["scans"]
+    assert h["ate_rmse_m"] < 0.07 and h["ate_max_m"] < 0.17
+    assert h["relations"]["count"] >= 40 and h["relations"]["translation_mean_m"] < 0.04
+    assert result["statuses"].get("accepted", 0) >= 0.85 * result["scans"]
     assert "collecting" not in result["statuses"] and "lost" not in result["statuses"]
 
 
 def test_fr079_first_300_scans_stay_tracking() -> None:
-    # measured: ATE 15 cm RMSE, 45 cm max, 14 % of the poses beyond 0.3 m / 5° (the reference's
-    # threshold) — not yet the target; a guard that tracking holds and beats the odometry
+    # measured: ATE 8.4 cm RMSE, 37 cm max, 1.7 % of the poses beyond 0.3 m / 5° (15 cm and 14 %
+    # before the map builder merged near-duplicate lines); the whole log is still lost later
     result = score(run(_need("fr079"), limit=300))
     h, odom = result["houghloc"], result["odometry"]
     assert h["matched"] >= 250
-    assert h["lost"] <= 0.25
-    assert h["ate_rmse_m"] < 0.25 and h["ate_max_m"] < 0.7
+    assert h["lost"] <= 0.05
+    assert h["ate_rmse_m"] < 0.12 and h["ate_max_m"] < 0.5
     assert "collecting" not in result["statuses"] and "lost" not in result["statuses"]
-    assert odom["ate_rmse_m"] > 2 * h["ate_rmse_m"]  # better than the odometry's best alignment
+    assert odom["ate_rmse_m"] > 5 * h["ate_rmse_m"]  # better than the odometry's best alignment
+
+
+def test_aces_first_120_scans_stay_tracking() -> None:
+    # measured: ATE 9.4 cm RMSE, 34 cm max, 1.7 % lost (scans ~2 s apart: long odometry
+    # stretches between fixes); the odometry's best alignment: 1.28 m
+    result = score(run(_need("aces"), limit=120))
+    h, odom = result["houghloc"], result["odometry"]
+    assert h["matched"] >= 100
+    assert h["lost"] <= 0.05
+    assert h["ate_rmse_m"] < 0.14 and h["ate_max_m"] < 0.5
+    assert "collecting" not in result["statuses"] and "lost" not in result["statuses"]
+    assert odom["ate_rmse_m"] > 5 * h["ate_rmse_m"]
