@@ -95,11 +95,11 @@ class OdometryCalibration:
         gx, gy = x - px, y - py
         k = self.translation_scale
         dx, dy = k * (c * gx + s * gy), k * (c * gy - s * gx)  # (⊖raw_prev ⊕ raw), scaled
-        dth = self.rotation_scale * _wrap(theta - pth)
+        dth = self.rotation_scale * wrap_scalar(theta - pth)
         cx, cy, cth = self._calibrated
         c, s = math.cos(cth), math.sin(cth)
         self._raw = (float(x), float(y), float(theta))
-        self._calibrated = (cx + c * dx - s * dy, cy + s * dx + c * dy, _wrap(cth + dth))
+        self._calibrated = (cx + c * dx - s * dy, cy + s * dx + c * dy, wrap_scalar(cth + dth))
         return self._calibrated
 
 
