@@ -77,6 +77,19 @@ class AmbiguityConfig(BaseModel):
     tie_lead: float = Field(
         0.1, gt=0.0, description="lead in the fraction of points on walls that breaks a tie")
     retry_every: int = Field(3, ge=1, description="scans between global attempts")
+    # A fix that puts the scan where the map has no walls is not used, however well it passes
+    # the filter's gate: a single matched line (rank 2) after a kidnap can steer the heading
+    # wherever the odometry drifts while every innovation stays small.
+    misfit_ratio: float = Field(
+        0.5, ge=0.0, le=1.0, description="a fix with a fraction of points on walls below this "
+        "times the recent typical fraction is a misfit (0 turns the check off)")
+    fit_window: int = Field(20, ge=3, description="recent used fixes that set the typical fit")
+    # After a kidnap the pose is more plausibly near where the robot was last known to be than
+    # across the building: tied hypotheses are ranked by their distance from the last trusted
+    # pose (carried by odometry). Without such a pose (global start) nothing changes.
+    kidnap_prior_margin: float | None = Field(
+        1.0, gt=0.0, description="m; the tied hypothesis nearest the last trusted pose is taken "
+        "when every rival is at least this much farther from it (None: never)")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
 
 
@@ -118,6 +131,9 @@ class AmbiguityManager:
     _hyp_odom: NDArray[np.float64] | None = None
     _hyp_fit: list = field(default_factory=list)  # per tied pose: recent fractions on walls
     _prior: tuple[NDArray, NDArray, NDArray] | None = None  # pose, cov, odometry when tracking
+    _last_trusted: tuple[NDArray, NDArray] | None = None  # pose, odometry at the last used fix
+    _trusted_by_prior_only: bool = False  # tracking since a tie broken by _last_trusted alone
+    _recent_fit: deque = field(default_factory=deque)  # fractions on walls of used fixes
     logger: object | None = None
 
     def __post_init__(self) -> None:
@@ -135,6 +151,8 @@ class AmbiguityManager:
             return
         if pose is not None and odom is not None:  # the belief, should tracking be abandoned
             self._prior = (np.array(pose, float), np.array(cov, float), np.array(odom, float))
+            if status == "accepted":
+                self._last_trusted = (np.array(pose, float), np.array(odom, float))
         self._without_fix = 0 if status == "accepted" else self._without_fix + 1
         if self._without_fix >= self.config.max_scans_without_fix:
             self._go(t, State.COLLECTING,
@@ -145,6 +163,38 @@ class AmbiguityManager:
         if sigma > self.config.max_position_sigma_fraction * spacing:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
                                           f"{spacing:.2f} m between parallel lines in view")
+
+    def fix_fits_map(self, pose: NDArray, points: NDArray,
+                     kinds: tuple[str, ...] = ("wall",)) -> bool:
+        """Does a tracking fix put the scan on the map's walls about as well as recent fixes did?
+
+        The fraction of ``points`` (robot frame) within the global matcher's inlier distance of
+        a wall at ``pose`` is compared with the median of the last ``fit_window`` fixes that
+        passed: below ``misfit_ratio`` times that the fix is a misfit (the robot is not where the
+        filter thinks, e.g. kidnapped). Relative, so that clutter and unmapped furniture, which
+        lower every fix's fraction alike, do not make good fixes misfits."""
+        if self.config.misfit_ratio <= 0.0 or len(points) == 0:
+            return True
+        fraction = self.fit_fraction(pose, points, kinds)
+        recent = self._recent_fit
+        if len(recent) >= 5 and fraction < self.config.misfit_ratio * float(np.median(recent)):
+            self.counts["misfits"] += 1
+            return False
+        recent.append(fraction)
+        while len(recent) > self.config.fit_window:
+            recent.popleft()
+        return True
+
+    def fit_fraction(self, pose: NDArray, points: NDArray,
+                     kinds: tuple[str, ...] = ("wall",)) -> float:
+        """The fraction of ``points`` (robot frame) on the map's segments of ``kinds`` at
+        ``pose``."""
+        if len(points) == 0:
+            return 0.0
+        gm = self.config.global_match
+        walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
+        world = transform_points(np.asarray(pose, float), points)
+        return float((walls.lookup(world[:, 0], world[:, 1]) <= gm.inlier_distance).mean())
 
     # ------------------------------------------------------------------ global mode
     def collecting_step(self, t: float, odom: NDArray, points: NDArray,
@@ -210,6 +260,11 @@ class AmbiguityManager:
             chosen = self._break_tie_with_prior(tied)
             if chosen is not None:
                 return self._accept(t, chosen, "tie broken by the last tracked pose")
+            chosen, why = self._break_tie_by_distance(tied)
+            if chosen is not None:
+                decision = self._accept(t, chosen, why)
+                self._trusted_by_prior_only = True
+                return decision
             if not self.hypotheses:  # a new tie: follow each of its poses from now on
                 self.hypotheses = [np.asarray(h.pose, float) for h in tied]
                 self._hyp_odom = self._views[-1].odom.copy()
@@ -238,6 +293,26 @@ class AmbiguityManager:
             if e @ np.linalg.solve(spread, e) <= 16.27:  # χ²(3) at 0.999
                 inside.append(h)
         return inside[0] if len(inside) == 1 else None
+
+    def _break_tie_by_distance(self, tied: list) -> tuple[object | None, str]:
+        """Of tied hypotheses, the one nearest the last trusted pose carried by odometry, when
+        every rival is ``kidnap_prior_margin`` farther: the views cannot tell the poses apart,
+        and a robot that was pushed or carried is more plausibly near where it was than across
+        the building. None without a trusted pose (global start) or when it is no nearer one
+        than the others — and when the pose it would replace came from this rule itself: a
+        pose chosen by distance alone is no evidence for the next choice."""
+        margin = self.config.kidnap_prior_margin
+        if margin is None or self._last_trusted is None or not self._views:
+            return None, ""
+        pose, odom = self._last_trusted
+        moved = compose(pose, relative(odom, self._views[-1].odom))
+        dist = np.array([math.hypot(*(np.asarray(h.pose[:2], float) - moved[:2])) for h in tied])
+        order = np.argsort(dist)
+        if dist[order[1]] - dist[order[0]] < margin:
+            return None, ""
+        self.counts["ties_broken_by_distance"] += 1
+        return tied[order[0]], (f"tie broken by the last trusted pose: {dist[order[0]]:.1f} m "
+                                f"from it, the next {dist[order[1]]:.1f} m")
 
     def _accept(self, t: float, best, how: str) -> Decision:
         self._failures = 0
@@ -338,8 +413,13 @@ class AmbiguityManager:
             self._views.clear()
             self._failures = 0
             self._since_attempt = 0
+            if self._trusted_by_prior_only:  # it may have been the wrong one of the tie
+                self._last_trusted = None
+                self._trusted_by_prior_only = False
         if new is State.LOST:
             self._prior = None  # no belief to break ties with
+        if new is State.TRACKING:
+            self._trusted_by_prior_only = False  # set again by the caller when it is so
         self.transitions.append(Transition(t, self.state, new, reason))
         self.counts[f"{self.state.value}->{new.value}"] += 1
         self.state = new
