@@ -76,6 +76,9 @@ class AmbiguityConfig(BaseModel):
         10, ge=2, description="scans over which tied poses are compared by how well they fit")
     tie_lead: float = Field(
         0.1, gt=0.0, description="lead in the fraction of points on walls that breaks a tie")
+    tie_steady_lead: float | None = Field(
+        0.01, gt=0.0, description="a smaller lead breaks it too when held on every scan of "
+        "the window (None: never)")
     retry_every: int = Field(3, ge=1, description="scans between global attempts")
     # A fix that puts the scan where the map has no walls is not used, however well it passes
     # the filter's gate: a single matched line (rank 2) after a kidnap can steer the heading
@@ -89,7 +92,10 @@ class AmbiguityConfig(BaseModel):
     # pose (carried by odometry). Without such a pose (global start) nothing changes.
     kidnap_prior_margin: float | None = Field(
         1.0, gt=0.0, description="m; the tied hypothesis nearest the last trusted pose is taken "
-        "when every rival is at least this much farther from it (None: never)")
+        "when every rival is at least this much farther from it (None: never) ...")
+    kidnap_prior_ratio: float = Field(
+        2.0, ge=1.0, description="... and at least this many times as far: two poses 3 and 4 m "
+        "away are both plausible places to have been carried to, 3 and 7 m much less so")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
 
 
@@ -296,19 +302,26 @@ class AmbiguityManager:
 
     def _break_tie_by_distance(self, tied: list) -> tuple[object | None, str]:
         """Of tied hypotheses, the one nearest the last trusted pose carried by odometry, when
-        every rival is ``kidnap_prior_margin`` farther: the views cannot tell the poses apart,
+        every rival is ``kidnap_prior_margin`` farther and ``kidnap_prior_ratio`` times as far
+        (3 m against 7: a pose in the next look-alike room): the views cannot tell them apart,
         and a robot that was pushed or carried is more plausibly near where it was than across
-        the building. None without a trusted pose (global start) or when it is no nearer one
-        than the others — and when the pose it would replace came from this rule itself: a
+        the building. None without a trusted pose (global start), when it is no nearer one than
+        the others, when the poses were found by sliding along a corridor (the right one may
+        have been dropped; the nearest would then be wrong and look right for as long as the
+        corridor lasts) — and when the pose it would replace came from this rule itself: a
         pose chosen by distance alone is no evidence for the next choice."""
         margin = self.config.kidnap_prior_margin
         if margin is None or self._last_trusted is None or not self._views:
+            return None, ""
+        if any(h.slid for h in tied):  # an incomplete set: the right pose may not be in it
             return None, ""
         pose, odom = self._last_trusted
         moved = compose(pose, relative(odom, self._views[-1].odom))
         dist = np.array([math.hypot(*(np.asarray(h.pose[:2], float) - moved[:2])) for h in tied])
         order = np.argsort(dist)
-        if dist[order[1]] - dist[order[0]] < margin:
+        nearest, next_nearest = dist[order[0]], dist[order[1]]
+        if (next_nearest - nearest < margin
+                or next_nearest < self.config.kidnap_prior_ratio * nearest):
             return None, ""
         self.counts["ties_broken_by_distance"] += 1
         return tied[order[0]], (f"tie broken by the last trusted pose: {dist[order[0]]:.1f} m "
@@ -388,7 +401,8 @@ class AmbiguityManager:
             best = int(np.argmax(means))
         full = all(len(f) == self.config.tie_window for f in self._hyp_fit)
         others = np.delete(means, best)
-        if full and (len(others) == 0 or means[best] - others.max() >= self.config.tie_lead):
+        if full and (len(others) == 0 or means[best] - others.max() >= self.config.tie_lead
+                     or self._leads_every_scan(best)):
             pose = self.hypotheses[best]
             self.hypotheses, self._hyp_fit = [], []
             self._views.clear()
@@ -398,6 +412,17 @@ class AmbiguityManager:
                                         f"at one pose, {rival:.2f} at the next best")
             return Decision(pose, np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2]))
         return Decision()
+
+    def _leads_every_scan(self, best: int) -> bool:
+        """Does tied pose ``best`` fit better than every other on each scan of the window, by
+        ``tie_steady_lead`` on average? A few points more on walls in every one of ten scans
+        (a wall glimpsed through a door at one pose only) is evidence, however small; a lead
+        that comes and goes is clutter."""
+        if self.config.tie_steady_lead is None:
+            return False
+        fits = np.array([list(f) for f in self._hyp_fit])  # hypotheses × window
+        lead = fits[best] - np.delete(fits, best, axis=0).max(axis=0)
+        return bool((lead > 0).all() and lead.mean() >= self.config.tie_steady_lead)
 
     def carried_hypotheses(self, odom: NDArray) -> list[NDArray[np.float64]]:
         """The tied hypotheses moved by the odometry since they were found."""

@@ -180,6 +180,23 @@ def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     assert later is None or later > 5.0
 
 
+def test_corridor_look_alike_tie_broken_by_a_steady_small_lead():
+    """Put down near the corridor's west end, facing east, halfway between the last trusted pose
+    and the look-alike place 7 m further east (2.9 m against 4.2 m: too close to choose by
+    distance). The true pose has about 1.5 % more of each scan's points on walls (a wall seen
+    through a door), on every scan: that breaks the tie; waiting for a 10 % lead takes 9 s."""
+    recovered, confident_wrong, loc, _ = kidnap_trial(seed=1)
+    reasons = [tr.reason for tr in loc.manager.transitions]
+    assert not any("last trusted pose" in r for r in reasons), reasons
+    assert any(r.startswith("tie broken:") for r in reasons), reasons
+    assert recovered is not None and recovered <= 2.5 and confident_wrong == 0
+    base = LocalizerConfig.from_yaml(OFFICE)
+    patient = base.model_copy(update={"ambiguity": base.ambiguity.model_copy(
+        update={"tie_steady_lead": None})})
+    later, confident_wrong, _, _ = kidnap_trial(seed=1, config=patient)
+    assert later is not None and later > 5.0 and confident_wrong == 0
+
+
 @pytest.mark.slow
 def test_kidnap_twenty_seeds():
     trials = [kidnap_trial(seed)[:2] for seed in range(20)]
@@ -268,3 +285,44 @@ def test_goal_colours_break_the_mirror_tie():
     assert any("tie" in r for r in reasons) and any("goal_" in r for r in reasons), reasons
     settle = settled_after(np.array(times), np.array(errors), times[0])
     assert settle is not None and settle < 15.0
+
+
+def test_corridor_seen_along_its_length_is_placed_by_sliding(office):
+    """Only the corridor's two walls and their door gaps in view (no wall across it): no pair
+    of lines fixes the pose, sliding the view along the corridor does. The corridor repeats
+    every 7 m, so the copy 7 m away is reported as a tie, not a winner."""
+    from houghloc import GlobalMatchConfig, global_match, observe_lines
+
+    true = np.array([5.5, 6.2, 0.0])
+    along = np.arange(-4.0, 4.0, 0.03)
+    world = [np.column_stack((true[0] + along, np.full_like(along, y))) for y in (5.0, 7.0)]
+    world = np.concatenate(world)
+    a, e = office.starts, office.ends - office.starts  # distance to every segment, exactly
+    u = np.clip(((world[:, None] - a) * e).sum(-1) / (e * e).sum(-1), 0.0, 1.0)
+    gap = np.hypot(*(a + u[..., None] * e - world[:, None]).transpose(2, 0, 1)).min(axis=1)
+    points = world[gap < 1e-6] - true[:2]  # heading 0: robot frame = world shifted
+    assert len(points) < 0.95 * len(world)  # the door gaps are in the view
+    cfg = GlobalMatchConfig()
+    _, _, lines = observe_lines(points, cfg.hough)
+    result = global_match(lines, points, office, cfg)
+    assert result.hypotheses, result.reason
+    errors = [(math.hypot(*(h.pose[:2] - true[:2])),
+               abs(math.remainder(h.pose[2] - true[2], 2 * math.pi))) for h in result.hypotheses]
+    assert any(d < 0.05 and a < math.radians(1.0) for d, a in errors), errors
+    assert result.ambiguous  # the copy 7 m along
+    no_slide = cfg.model_copy(update={"slide_along_parallel": False})
+    off = global_match(lines, points, office, no_slide)
+    assert not off.hypotheses and "non-parallel" in off.reason
+
+
+def test_kidnap_into_a_corridor_facing_along_it():
+    """Put down in the corridor 0.2 m from a wall, facing along it: until a room's wall shows
+    through a door (5.3 s after the kidnap), only the sliding search places the robot."""
+    recovered, confident_wrong, _, _ = kidnap_trial(seed=12)
+    assert recovered is not None and recovered <= 5.0 and confident_wrong == 0
+    base = LocalizerConfig.from_yaml(OFFICE)
+    gm = base.ambiguity.global_match.model_copy(update={"slide_along_parallel": False})
+    no_slide = base.model_copy(update={"ambiguity": base.ambiguity.model_copy(
+        update={"global_match": gm})})
+    later, _, _, _ = kidnap_trial(seed=12, config=no_slide)
+    assert later is None or later > 5.0
