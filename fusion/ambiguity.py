@@ -78,7 +78,10 @@ class AmbiguityConfig(BaseModel):
         0.1, gt=0.0, description="lead in the fraction of points on walls that breaks a tie")
     tie_steady_lead: float | None = Field(
         0.01, gt=0.0, description="a smaller lead breaks it too when held on every scan of "
-        "the window (None: never)")
+        "the window (None: never) ...")
+    tie_min_fit: float = Field(
+        0.9, ge=0.0, le=1.0, description="... and so does the distance from the last trusted "
+        "pose, but only for a pose whose fraction on walls is this much of tracking's")
     retry_every: int = Field(3, ge=1, description="scans between global attempts")
     # A fix that puts the scan where the map has no walls is not used, however well it passes
     # the filter's gate: a single matched line (rank 2) after a kidnap can steer the heading
@@ -139,6 +142,7 @@ class AmbiguityManager:
     _prior: tuple[NDArray, NDArray, NDArray] | None = None  # pose, cov, odometry when tracking
     _last_trusted: tuple[NDArray, NDArray] | None = None  # pose, odometry at the last used fix
     _trusted_by_prior_only: bool = False  # tracking since a tie broken by _last_trusted alone
+    _ties_slid: bool = False  # the followed ties were found by sliding along a corridor
     _recent_fit: deque = field(default_factory=deque)  # fractions on walls of used fixes
     logger: object | None = None
 
@@ -266,15 +270,11 @@ class AmbiguityManager:
             chosen = self._break_tie_with_prior(tied)
             if chosen is not None:
                 return self._accept(t, chosen, "tie broken by the last tracked pose")
-            chosen, why = self._break_tie_by_distance(tied)
-            if chosen is not None:
-                decision = self._accept(t, chosen, why)
-                self._trusted_by_prior_only = True
-                return decision
             if not self.hypotheses:  # a new tie: follow each of its poses from now on
                 self.hypotheses = [np.asarray(h.pose, float) for h in tied]
                 self._hyp_odom = self._views[-1].odom.copy()
                 self._hyp_fit = [deque(maxlen=self.config.tie_window) for _ in tied]
+                self._ties_slid = any(getattr(h, "slid", False) for h in tied)
             self.counts["ties"] += 1
             self._go(t, State.COLLECTING,
                      f"{len(tied)} hypotheses tie (score {top:.2f}): symmetric map, collecting")
@@ -300,32 +300,38 @@ class AmbiguityManager:
                 inside.append(h)
         return inside[0] if len(inside) == 1 else None
 
-    def _break_tie_by_distance(self, tied: list) -> tuple[object | None, str]:
-        """Of tied hypotheses, the one nearest the last trusted pose carried by odometry, when
-        every rival is ``kidnap_prior_margin`` farther and ``kidnap_prior_ratio`` times as far
-        (3 m against 7: a pose in the next look-alike room): the views cannot tell them apart,
-        and a robot that was pushed or carried is more plausibly near where it was than across
-        the building. None without a trusted pose (global start), when it is no nearer one than
-        the others, when the poses were found by sliding along a corridor (the right one may
-        have been dropped; the nearest would then be wrong and look right for as long as the
-        corridor lasts) — and when the pose it would replace came from this rule itself: a
-        pose chosen by distance alone is no evidence for the next choice."""
+    def _nearest_to_last_trusted(self, odom: NDArray) -> tuple[int | None, str]:
+        """Of the followed tied poses, the one nearest the last trusted pose carried by
+        odometry, when every rival is ``kidnap_prior_margin`` farther and ``kidnap_prior_ratio``
+        times as far (3 m against 7: a pose in the next look-alike room): the views cannot tell
+        them apart, and a robot that was pushed or carried is more plausibly near where it was
+        than across the building. None without a trusted pose (global start), when it is no
+        nearer one than the others, when the poses were found by sliding along a corridor (the
+        right one may have been dropped; the nearest would then be wrong and look right for as
+        long as the corridor lasts) — and when the pose it would replace came from this rule
+        itself: a pose chosen by distance alone is no evidence for the next choice."""
         margin = self.config.kidnap_prior_margin
-        if margin is None or self._last_trusted is None or not self._views:
+        if (margin is None or self._last_trusted is None or self._ties_slid
+                or len(self.hypotheses) < 2):
             return None, ""
-        if any(h.slid for h in tied):  # an incomplete set: the right pose may not be in it
-            return None, ""
-        pose, odom = self._last_trusted
-        moved = compose(pose, relative(odom, self._views[-1].odom))
-        dist = np.array([math.hypot(*(np.asarray(h.pose[:2], float) - moved[:2])) for h in tied])
+        pose, trusted_odom = self._last_trusted
+        moved = compose(pose, relative(trusted_odom, odom))
+        dist = np.array([math.hypot(*(h[:2] - moved[:2])) for h in self.hypotheses])
         order = np.argsort(dist)
         nearest, next_nearest = dist[order[0]], dist[order[1]]
         if (next_nearest - nearest < margin
                 or next_nearest < self.config.kidnap_prior_ratio * nearest):
             return None, ""
-        self.counts["ties_broken_by_distance"] += 1
-        return tied[order[0]], (f"tie broken by the last trusted pose: {dist[order[0]]:.1f} m "
-                                f"from it, the next {dist[order[1]]:.1f} m")
+        return int(order[0]), (f"tie broken by the last trusted pose: {nearest:.1f} m from it, "
+                               f"the next {next_nearest:.1f} m")
+
+    def _fits_like_tracking(self, mean_fit: float) -> bool:
+        """Does a followed pose fit the scans nearly as well as tracking did before it was
+        abandoned (``tie_min_fit`` of the recent fixes' median; of 1 without any)? The weaker
+        rules (distance, a small steady lead) choose among the tied poses; when the right pose
+        is not among them, the one they choose fits visibly worse than tracking did."""
+        typical = float(np.median(self._recent_fit)) if self._recent_fit else 1.0
+        return mean_fit >= self.config.tie_min_fit * typical
 
     def _accept(self, t: float, best, how: str) -> Decision:
         self._failures = 0
@@ -400,18 +406,34 @@ class AmbiguityManager:
             means = means[keep]
             best = int(np.argmax(means))
         full = all(len(f) == self.config.tie_window for f in self._hyp_fit)
+        if not full:
+            return Decision()
         others = np.delete(means, best)
-        if full and (len(others) == 0 or means[best] - others.max() >= self.config.tie_lead
-                     or self._leads_every_scan(best)):
-            pose = self.hypotheses[best]
-            self.hypotheses, self._hyp_fit = [], []
-            self._views.clear()
-            self._without_fix = 0
-            rival = others.max() if len(others) else 0.0
+        rival = others.max() if len(others) else 0.0
+        chosen, by_distance = None, False
+        if len(others) == 0 or means[best] - rival >= self.config.tie_lead:
+            chosen = best
+        elif self._leads_every_scan(best) and self._fits_like_tracking(means[best]):
+            chosen = best
+        else:
+            nearest, why = self._nearest_to_last_trusted(odom)
+            if (nearest is not None and self._fits_like_tracking(means[nearest])
+                    and means[nearest] >= means[best] - self.config.tie_lead):
+                chosen, by_distance = nearest, True
+        if chosen is None:
+            return Decision()
+        pose = self.hypotheses[chosen]
+        self.hypotheses, self._hyp_fit = [], []
+        self._views.clear()
+        self._without_fix = 0
+        if by_distance:
+            self.counts["ties_broken_by_distance"] += 1
+            self._go(t, State.TRACKING, f"{why}; {means[chosen]:.2f} of the points on walls")
+            self._trusted_by_prior_only = True
+        else:
             self._go(t, State.TRACKING, f"tie broken: {means[best]:.2f} of the points on walls "
                                         f"at one pose, {rival:.2f} at the next best")
-            return Decision(pose, np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2]))
-        return Decision()
+        return Decision(pose, np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2]))
 
     def _leads_every_scan(self, best: int) -> bool:
         """Does tied pose ``best`` fit better than every other on each scan of the window, by

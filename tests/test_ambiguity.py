@@ -166,12 +166,13 @@ def test_misfit_is_relative_to_recent_fixes(office):
 
 def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     """Put down in the south room that repeats 7 m further east (same door, same walls in view),
-    the views tie between the two rooms; the one 3 m from the last trusted pose is taken over
-    the one 9 m away. Without the rule the tie holds until the cabinet comes into view."""
+    the views tie between the two rooms; after a window of scans that fit both equally well (and
+    as well as tracking did), the one 3 m from the last trusted pose is taken over the one 9 m
+    away. Without the rule the tie holds until the cabinet comes into view."""
     recovered, confident_wrong, loc, _ = kidnap_trial(seed=4)
     reasons = [tr.reason for tr in loc.manager.transitions]
     assert any("tie broken by the last trusted pose" in r for r in reasons), reasons
-    assert recovered is not None and recovered <= 1.5 and confident_wrong == 0
+    assert recovered is not None and recovered <= 2.5 and confident_wrong == 0
     base = LocalizerConfig.from_yaml(OFFICE)
     no_prior = base.model_copy(update={"ambiguity": base.ambiguity.model_copy(
         update={"kidnap_prior_margin": None})})
@@ -195,6 +196,19 @@ def test_corridor_look_alike_tie_broken_by_a_steady_small_lead():
         update={"tie_steady_lead": None})})
     later, confident_wrong, _, _ = kidnap_trial(seed=1, config=patient)
     assert later is not None and later > 5.0 and confident_wrong == 0
+
+
+def test_no_rule_chooses_among_ties_that_miss_the_right_pose():
+    """Put down near a room's corner, the first global matches tie between look-alike corners
+    elsewhere and miss the right one. The nearest of them (3.3 m from the last trusted pose,
+    the next 10 m) and the one that leads on every scan both fit the scans visibly worse than
+    tracking did, so neither is taken; the right pose is found by a later match."""
+    recovered, confident_wrong, loc, _ = kidnap_trial(seed=27)
+    reasons = [tr.reason for tr in loc.manager.transitions]
+    assert loc.manager.counts["ties"] >= 3, reasons
+    assert not any("last trusted pose" in r for r in reasons), reasons
+    assert confident_wrong == 0
+    assert recovered is not None and recovered <= 5.0
 
 
 @pytest.mark.slow
