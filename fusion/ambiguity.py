@@ -80,8 +80,8 @@ class AmbiguityConfig(BaseModel):
         0.01, gt=0.0, description="a smaller lead breaks it too when held on every scan of "
         "the window (None: never) ...")
     tie_min_fit: float = Field(
-        0.9, ge=0.0, le=1.0, description="... and so does the distance from the last trusted "
-        "pose, but only for a pose whose fraction on walls is this much of tracking's")
+        0.9, ge=0.0, le=1.0, description="... by a pose whose fraction on walls is at least "
+        "this much of tracking's")
     retry_every: int = Field(3, ge=1, description="scans between global attempts")
     # A fix that puts the scan where the map has no walls is not used, however well it passes
     # the filter's gate: a single matched line (rank 2) after a kidnap can steer the heading
@@ -91,14 +91,14 @@ class AmbiguityConfig(BaseModel):
         "times the recent typical fraction is a misfit (0 turns the check off)")
     fit_window: int = Field(20, ge=3, description="recent used fixes that set the typical fit")
     # After a kidnap the pose is more plausibly near where the robot was last known to be than
-    # across the building: tied hypotheses are ranked by their distance from the last trusted
-    # pose (carried by odometry). Without such a pose (global start) nothing changes.
-    kidnap_prior_margin: float | None = Field(
-        1.0, gt=0.0, description="m; the tied hypothesis nearest the last trusted pose is taken "
-        "when every rival is at least this much farther from it (None: never) ...")
-    kidnap_prior_ratio: float = Field(
-        2.0, ge=1.0, description="... and at least this many times as far: two poses 3 and 4 m "
-        "away are both plausible places to have been carried to, 3 and 7 m much less so")
+    # across the building: a displacement prior N(0, σ²) about the last trusted pose (carried by
+    # odometry) breaks ties that the views cannot. Without such a pose (global start) nothing
+    # changes.
+    kidnap_prior_sigma: float | None = Field(
+        2.0, gt=0.0, description="m; scale of a plausible kidnap (None: never use the prior)")
+    kidnap_prior_odds: float = Field(
+        10.0, gt=1.0, description="the nearest tied pose is taken when the prior makes it this "
+        "many times as likely as every rival: exp((d₂² − d₁²) / 2σ²)")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
 
 
@@ -302,16 +302,17 @@ class AmbiguityManager:
 
     def _nearest_to_last_trusted(self, odom: NDArray) -> tuple[int | None, str]:
         """Of the followed tied poses, the one nearest the last trusted pose carried by
-        odometry, when every rival is ``kidnap_prior_margin`` farther and ``kidnap_prior_ratio``
-        times as far (3 m against 7: a pose in the next look-alike room): the views cannot tell
-        them apart, and a robot that was pushed or carried is more plausibly near where it was
-        than across the building. None without a trusted pose (global start), when it is no
-        nearer one than the others, when the poses were found by sliding along a corridor (the
-        right one may have been dropped; the nearest would then be wrong and look right for as
-        long as the corridor lasts) — and when the pose it would replace came from this rule
-        itself: a pose chosen by distance alone is no evidence for the next choice."""
-        margin = self.config.kidnap_prior_margin
-        if (margin is None or self._last_trusted is None or self._ties_slid
+        odometry, when a displacement prior N(0, ``kidnap_prior_sigma``²) makes it
+        ``kidnap_prior_odds`` times as likely as every rival: the views cannot tell them apart,
+        and a robot that was pushed or carried is more plausibly near where it was than across
+        the building. 3 m against 6 m from it (the next look-alike room) is 30 : 1 with σ = 2 m;
+        3 m against 4 m is 3 : 1, a coin toss left to the evidence. None without a trusted pose
+        (global start), when the poses were found by sliding along a corridor (the right one may
+        have been dropped; the nearest would then be wrong and look right for as long as the
+        corridor lasts), and when the pose it would replace came from this rule itself: a pose
+        chosen by distance alone is no evidence for the next choice."""
+        sigma = self.config.kidnap_prior_sigma
+        if (sigma is None or self._last_trusted is None or self._ties_slid
                 or len(self.hypotheses) < 2):
             return None, ""
         pose, trusted_odom = self._last_trusted
@@ -319,17 +320,17 @@ class AmbiguityManager:
         dist = np.array([math.hypot(*(h[:2] - moved[:2])) for h in self.hypotheses])
         order = np.argsort(dist)
         nearest, next_nearest = dist[order[0]], dist[order[1]]
-        if (next_nearest - nearest < margin
-                or next_nearest < self.config.kidnap_prior_ratio * nearest):
+        log_odds = (next_nearest**2 - nearest**2) / (2 * sigma**2)
+        if log_odds < math.log(self.config.kidnap_prior_odds):
             return None, ""
         return int(order[0]), (f"tie broken by the last trusted pose: {nearest:.1f} m from it, "
                                f"the next {next_nearest:.1f} m")
 
     def _fits_like_tracking(self, mean_fit: float) -> bool:
         """Does a followed pose fit the scans nearly as well as tracking did before it was
-        abandoned (``tie_min_fit`` of the recent fixes' median; of 1 without any)? The weaker
-        rules (distance, a small steady lead) choose among the tied poses; when the right pose
-        is not among them, the one they choose fits visibly worse than tracking did."""
+        abandoned (``tie_min_fit`` of the recent fixes' median; of 1 without any)? A small
+        steady lead only ranks the tied poses; when the right pose is not among them, the best
+        of the wrong ones leads too, but fits visibly worse than tracking did."""
         typical = float(np.median(self._recent_fit)) if self._recent_fit else 1.0
         return mean_fit >= self.config.tie_min_fit * typical
 
@@ -417,8 +418,7 @@ class AmbiguityManager:
             chosen = best
         else:
             nearest, why = self._nearest_to_last_trusted(odom)
-            if (nearest is not None and self._fits_like_tracking(means[nearest])
-                    and means[nearest] >= means[best] - self.config.tie_lead):
+            if nearest is not None and means[nearest] >= means[best] - self.config.tie_lead:
                 chosen, by_distance = nearest, True
         if chosen is None:
             return Decision()

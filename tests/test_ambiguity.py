@@ -175,7 +175,7 @@ def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     assert recovered is not None and recovered <= 2.5 and confident_wrong == 0
     base = LocalizerConfig.from_yaml(OFFICE)
     no_prior = base.model_copy(update={"ambiguity": base.ambiguity.model_copy(
-        update={"kidnap_prior_margin": None})})
+        update={"kidnap_prior_sigma": None})})
     later, confident_wrong, loc, _ = kidnap_trial(seed=4, config=no_prior)
     assert loc.manager.counts["ties"] >= 10 and confident_wrong == 0
     assert later is None or later > 5.0
