@@ -4,12 +4,14 @@ whole map — and back.
 
 States and triggers::
 
-    tracking ──(ambiguous matches, repeated rejections or scans without a fix, covariance
-    │           too large for the map's line spacing, a kidnap)──▶ collecting
+    tracking ──(ambiguous matches, repeated rejections, misfits (fixes that put the scan off
+    │           the walls) or scans without a fix, covariance too large for the map's line
+    │           spacing, a kidnap)──▶ collecting
     collecting ──(enough views: at least two non-parallel lines)──▶ relocalizing
     relocalizing ──(one clear hypothesis)──▶ tracking (filter re-initialised from it)
                  ──(a tie: a symmetric map)──▶ collecting, hypotheses kept and carried by
-                   odometry until the evidence breaks the tie
+                   odometry until the evidence (or, after a kidnap, the last trusted pose)
+                   breaks the tie
                  ──(nothing fits, repeatedly)──▶ lost (still collecting)
     no initial pose ──▶ lost
 
