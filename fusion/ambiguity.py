@@ -4,12 +4,14 @@ whole map — and back.
 
 States and triggers::
 
-    tracking ──(ambiguous matches, repeated rejections or scans without a fix, covariance
-    │           too large for the map's line spacing, a kidnap)──▶ collecting
+    tracking ──(ambiguous matches, repeated rejections, misfits (fixes that put the scan off
+    │           the walls) or scans without a fix, covariance too large for the map's line
+    │           spacing, a kidnap)──▶ collecting
     collecting ──(enough views: at least two non-parallel lines)──▶ relocalizing
     relocalizing ──(one clear hypothesis)──▶ tracking (filter re-initialised from it)
                  ──(a tie: a symmetric map)──▶ collecting, hypotheses kept and carried by
-                   odometry until the evidence breaks the tie
+                   odometry until the evidence (or, after a kidnap, the last trusted pose)
+                   breaks the tie
                  ──(nothing fits, repeatedly)──▶ lost (still collecting)
     no initial pose ──▶ lost
 
@@ -76,7 +78,29 @@ class AmbiguityConfig(BaseModel):
         10, ge=2, description="scans over which tied poses are compared by how well they fit")
     tie_lead: float = Field(
         0.1, gt=0.0, description="lead in the fraction of points on walls that breaks a tie")
+    tie_steady_lead: float | None = Field(
+        0.01, gt=0.0, description="a smaller lead breaks it too when held on every scan of "
+        "the window (None: never) ...")
+    tie_min_fit: float = Field(
+        0.9, ge=0.0, le=1.0, description="... by a pose whose fraction on walls is at least "
+        "this much of tracking's")
     retry_every: int = Field(3, ge=1, description="scans between global attempts")
+    # A fix that puts the scan where the map has no walls is not used, however well it passes
+    # the filter's gate: a single matched line (rank 2) after a kidnap can steer the heading
+    # wherever the odometry drifts while every innovation stays small.
+    misfit_ratio: float = Field(
+        0.5, ge=0.0, le=1.0, description="a fix with a fraction of points on walls below this "
+        "times the recent typical fraction is a misfit (0 turns the check off)")
+    fit_window: int = Field(20, ge=3, description="recent used fixes that set the typical fit")
+    # After a kidnap the pose is more plausibly near where the robot was last known to be than
+    # across the building: a displacement prior N(0, σ²) about the last trusted pose (carried by
+    # odometry) breaks ties that the views cannot. Without such a pose (global start) nothing
+    # changes.
+    kidnap_prior_sigma: float | None = Field(
+        2.0, gt=0.0, description="m; scale of a plausible kidnap (None: never use the prior)")
+    kidnap_prior_odds: float = Field(
+        10.0, gt=1.0, description="the nearest tied pose is taken when the prior makes it this "
+        "many times as likely as every rival: exp((d₂² − d₁²) / 2σ²)")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
 
 
@@ -118,6 +142,10 @@ class AmbiguityManager:
     _hyp_odom: NDArray[np.float64] | None = None
     _hyp_fit: list = field(default_factory=list)  # per tied pose: recent fractions on walls
     _prior: tuple[NDArray, NDArray, NDArray] | None = None  # pose, cov, odometry when tracking
+    _last_trusted: tuple[NDArray, NDArray] | None = None  # pose, odometry at the last used fix
+    _trusted_by_prior_only: bool = False  # tracking since a tie broken by _last_trusted alone
+    _ties_slid: bool = False  # the followed ties were found by sliding along a corridor
+    _recent_fit: deque = field(default_factory=deque)  # fractions on walls of used fixes
     logger: object | None = None
 
     def __post_init__(self) -> None:
@@ -135,6 +163,8 @@ class AmbiguityManager:
             return
         if pose is not None and odom is not None:  # the belief, should tracking be abandoned
             self._prior = (np.array(pose, float), np.array(cov, float), np.array(odom, float))
+            if status == "accepted":
+                self._last_trusted = (np.array(pose, float), np.array(odom, float))
         self._without_fix = 0 if status == "accepted" else self._without_fix + 1
         if self._without_fix >= self.config.max_scans_without_fix:
             self._go(t, State.COLLECTING,
@@ -145,6 +175,38 @@ class AmbiguityManager:
         if sigma > self.config.max_position_sigma_fraction * spacing:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
                                           f"{spacing:.2f} m between parallel lines in view")
+
+    def fix_fits_map(self, pose: NDArray, points: NDArray,
+                     kinds: tuple[str, ...] = ("wall",)) -> bool:
+        """Does a tracking fix put the scan on the map's walls about as well as recent fixes did?
+
+        The fraction of ``points`` (robot frame) within the global matcher's inlier distance of
+        a wall at ``pose`` is compared with the median of the last ``fit_window`` fixes that
+        passed: below ``misfit_ratio`` times that the fix is a misfit (the robot is not where the
+        filter thinks, e.g. kidnapped). Relative, so that clutter and unmapped furniture, which
+        lower every fix's fraction alike, do not make good fixes misfits."""
+        if self.config.misfit_ratio <= 0.0 or len(points) == 0:
+            return True
+        fraction = self.fit_fraction(pose, points, kinds)
+        recent = self._recent_fit
+        if len(recent) >= 5 and fraction < self.config.misfit_ratio * float(np.median(recent)):
+            self.counts["misfits"] += 1
+            return False
+        recent.append(fraction)
+        while len(recent) > self.config.fit_window:
+            recent.popleft()
+        return True
+
+    def fit_fraction(self, pose: NDArray, points: NDArray,
+                     kinds: tuple[str, ...] = ("wall",)) -> float:
+        """The fraction of ``points`` (robot frame) on the map's segments of ``kinds`` at
+        ``pose``."""
+        if len(points) == 0:
+            return 0.0
+        gm = self.config.global_match
+        walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
+        world = transform_points(np.asarray(pose, float), points)
+        return float((walls.lookup(world[:, 0], world[:, 1]) <= gm.inlier_distance).mean())
 
     # ------------------------------------------------------------------ global mode
     def collecting_step(self, t: float, odom: NDArray, points: NDArray,
@@ -214,6 +276,7 @@ class AmbiguityManager:
                 self.hypotheses = [np.asarray(h.pose, float) for h in tied]
                 self._hyp_odom = self._views[-1].odom.copy()
                 self._hyp_fit = [deque(maxlen=self.config.tie_window) for _ in tied]
+                self._ties_slid = any(getattr(h, "slid", False) for h in tied)
             self.counts["ties"] += 1
             self._go(t, State.COLLECTING,
                      f"{len(tied)} hypotheses tie (score {top:.2f}): symmetric map, collecting")
@@ -238,6 +301,40 @@ class AmbiguityManager:
             if e @ np.linalg.solve(spread, e) <= 16.27:  # χ²(3) at 0.999
                 inside.append(h)
         return inside[0] if len(inside) == 1 else None
+
+    def _nearest_to_last_trusted(self, odom: NDArray) -> tuple[int | None, str]:
+        """Of the followed tied poses, the one nearest the last trusted pose carried by
+        odometry, when a displacement prior N(0, ``kidnap_prior_sigma``²) makes it
+        ``kidnap_prior_odds`` times as likely as every rival: the views cannot tell them apart,
+        and a robot that was pushed or carried is more plausibly near where it was than across
+        the building. 3 m against 6 m from it (the next look-alike room) is 30 : 1 with σ = 2 m;
+        3 m against 4 m is 3 : 1, a coin toss left to the evidence. None without a trusted pose
+        (global start), when the poses were found by sliding along a corridor (the right one may
+        have been dropped; the nearest would then be wrong and look right for as long as the
+        corridor lasts), and when the pose it would replace came from this rule itself: a pose
+        chosen by distance alone is no evidence for the next choice."""
+        sigma = self.config.kidnap_prior_sigma
+        if (sigma is None or self._last_trusted is None or self._ties_slid
+                or len(self.hypotheses) < 2):
+            return None, ""
+        pose, trusted_odom = self._last_trusted
+        moved = compose(pose, relative(trusted_odom, odom))
+        dist = np.array([math.hypot(*(h[:2] - moved[:2])) for h in self.hypotheses])
+        order = np.argsort(dist)
+        nearest, next_nearest = dist[order[0]], dist[order[1]]
+        log_odds = (next_nearest**2 - nearest**2) / (2 * sigma**2)
+        if log_odds < math.log(self.config.kidnap_prior_odds):
+            return None, ""
+        return int(order[0]), (f"tie broken by the last trusted pose: {nearest:.1f} m from it, "
+                               f"the next {next_nearest:.1f} m")
+
+    def _fits_like_tracking(self, mean_fit: float) -> bool:
+        """Does a followed pose fit the scans nearly as well as tracking did before it was
+        abandoned (``tie_min_fit`` of the recent fixes' median; of 1 without any)? A small
+        steady lead only ranks the tied poses; when the right pose is not among them, the best
+        of the wrong ones leads too, but fits visibly worse than tracking did."""
+        typical = float(np.median(self._recent_fit)) if self._recent_fit else 1.0
+        return mean_fit >= self.config.tie_min_fit * typical
 
     def _accept(self, t: float, best, how: str) -> Decision:
         self._failures = 0
@@ -312,17 +409,44 @@ class AmbiguityManager:
             means = means[keep]
             best = int(np.argmax(means))
         full = all(len(f) == self.config.tie_window for f in self._hyp_fit)
+        if not full:
+            return Decision()
         others = np.delete(means, best)
-        if full and (len(others) == 0 or means[best] - others.max() >= self.config.tie_lead):
-            pose = self.hypotheses[best]
-            self.hypotheses, self._hyp_fit = [], []
-            self._views.clear()
-            self._without_fix = 0
-            rival = others.max() if len(others) else 0.0
+        rival = others.max() if len(others) else 0.0
+        chosen, by_distance = None, False
+        if len(others) == 0 or means[best] - rival >= self.config.tie_lead:
+            chosen = best
+        elif self._leads_every_scan(best) and self._fits_like_tracking(means[best]):
+            chosen = best
+        else:
+            nearest, why = self._nearest_to_last_trusted(odom)
+            if nearest is not None and means[nearest] >= means[best] - self.config.tie_lead:
+                chosen, by_distance = nearest, True
+        if chosen is None:
+            return Decision()
+        pose = self.hypotheses[chosen]
+        self.hypotheses, self._hyp_fit = [], []
+        self._views.clear()
+        self._without_fix = 0
+        if by_distance:
+            self.counts["ties_broken_by_distance"] += 1
+            self._go(t, State.TRACKING, f"{why}; {means[chosen]:.2f} of the points on walls")
+            self._trusted_by_prior_only = True
+        else:
             self._go(t, State.TRACKING, f"tie broken: {means[best]:.2f} of the points on walls "
                                         f"at one pose, {rival:.2f} at the next best")
-            return Decision(pose, np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2]))
-        return Decision()
+        return Decision(pose, np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2]))
+
+    def _leads_every_scan(self, best: int) -> bool:
+        """Does tied pose ``best`` fit better than every other on each scan of the window, by
+        ``tie_steady_lead`` on average? A few points more on walls in every one of ten scans
+        (a wall glimpsed through a door at one pose only) is evidence, however small; a lead
+        that comes and goes is clutter."""
+        if self.config.tie_steady_lead is None:
+            return False
+        fits = np.array([list(f) for f in self._hyp_fit])  # hypotheses × window
+        lead = fits[best] - np.delete(fits, best, axis=0).max(axis=0)
+        return bool((lead > 0).all() and lead.mean() >= self.config.tie_steady_lead)
 
     def carried_hypotheses(self, odom: NDArray) -> list[NDArray[np.float64]]:
         """The tied hypotheses moved by the odometry since they were found."""
@@ -338,8 +462,13 @@ class AmbiguityManager:
             self._views.clear()
             self._failures = 0
             self._since_attempt = 0
+            if self._trusted_by_prior_only:  # it may have been the wrong one of the tie
+                self._last_trusted = None
+                self._trusted_by_prior_only = False
         if new is State.LOST:
             self._prior = None  # no belief to break ties with
+        if new is State.TRACKING:
+            self._trusted_by_prior_only = False  # set again by the caller when it is so
         self.transitions.append(Transition(t, self.state, new, reason))
         self.counts[f"{self.state.value}->{new.value}"] += 1
         self.state = new

@@ -32,7 +32,7 @@ class Estimate:
     t: float
     pose: NDArray[np.float64]
     cov: NDArray[np.float64]
-    status: str  # accepted | rejected | ambiguous | no-fix | dropped | invalid
+    status: str  # accepted | rejected | ambiguous | no-fix | misfit | dropped | invalid
     correction: ScanCorrection | None = None
     outcome: UpdateOutcome | None = None
 
@@ -132,6 +132,10 @@ class Localizer:
             estimate = self._finish(t, "ambiguous", fix, None, sensor, points)
         elif fix.rank == 0 or _matched_lines(fix) < cfg.min_fix_lines:
             estimate = self._finish(t, "no-fix", fix, None, sensor, points)
+        elif not self.manager.fix_fits_map(fix.pose, points, cfg.hough.reference_kinds):
+            # the scan lies off the map's walls at the fix: the robot is elsewhere (a kidnap),
+            # however small the innovation of the one or two lines it matched
+            estimate = self._finish(t, "misfit", fix, None, sensor, points)
         else:
             newest = self.tracker.time
             if newest is not None and t < newest:

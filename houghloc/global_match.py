@@ -28,6 +28,10 @@ of map lines without any pose guess:
    and :func:`houghloc.displacement.estimate_displacement` with a tight prior around the
    hypothesis), which gives an honest covariance, and is scored again.
 
+6. *Sliding*, only when the pairs give no hypothesis (all lines in view parallel: a corridor seen
+   along its length): the strongest line is put on each map line and the view slid along it; the
+   points on walls (door gaps, what shows through them) fix the position along (``slide_*``).
+
 A symmetric map leaves several hypotheses within ``tie_margin`` of the best: all are reported and
 the result is flagged ``ambiguous`` — the caller keeps collecting views, it never picks one.
 
@@ -99,6 +103,20 @@ class GlobalMatchConfig(BaseModel):
     check_visibility: bool = True
     visibility_margin: float = Field(
         0.25, ge=0.0, description="m; also absorbs the baseline between accumulated views")
+    # --- only parallel lines in view (a corridor seen along its length): the pose along them
+    # is found by sliding the view along each map line and counting the points on walls (door
+    # gaps and what shows through them), the only part of the view that fixes it
+    slide_along_parallel: bool = True
+    slide_step: float = Field(0.1, gt=0.0, description="m; coarse step of the slide")
+    slide_fine_step: float = Field(0.02, gt=0.0, description="m; step around the best ones")
+    slide_points: int = Field(400, ge=10, description="points subsampled for the slide")
+    slide_candidates: int = Field(40, ge=1, description="coarse maxima searched finely")
+    slide_sigma: float = Field(
+        0.1, gt=0.0, description="m; σ along the lines of a pose found by sliding")
+    slide_check: float = Field(0.3, gt=0.0, description="m; a found pose slid this far ...")
+    slide_min_sharpness: float = Field(
+        0.02, ge=0.0, description="... either way must fit worse by this much (weighted "
+        "fraction of points): otherwise the view does not fix the position along the lines")
     # --- clusters, refinement, decision
     cluster_xy: float = Field(0.3, gt=0.0, description="m; closer poses are one hypothesis")
     cluster_theta_deg: float = Field(5.0, gt=0.0)
@@ -156,6 +174,8 @@ class Hypothesis:
     n_lines_explained: int
     inlier_fraction: float
     matches: NDArray[np.intp]
+    slid: bool = False  # found by sliding along parallel lines: its position along them rests
+    # on a few gap edges, and rivals that the sharpness check dropped are not in the result
 
 
 @dataclass(frozen=True)
@@ -213,6 +233,23 @@ class WallDistance:
         ix = ((x - self.origin[0]) * (1.0 / self.cell)).astype(np.intp)  # ≥ 0 inside: truncation
         iy = ((y - self.origin[1]) * (1.0 / self.cell)).astype(np.intp)  # is floor there
         return self.distance.ravel()[np.clip(iy, 0, h - 1) * w + np.clip(ix, 0, w - 1)]
+
+    def lookup_smooth(self, x: NDArray, y: NDArray) -> NDArray[np.float32]:
+        """Distances interpolated bilinearly between cell centres: continuous in the position,
+        where :meth:`lookup` jumps by a cell (a point exactly on a wall may read one cell off)."""
+        h, w = self.distance.shape
+        fx = (x - self.origin[0]) * (1.0 / self.cell) - 0.5
+        fy = (y - self.origin[1]) * (1.0 / self.cell) - 0.5
+        x0 = np.clip(np.floor(fx).astype(np.intp), 0, w - 2)
+        y0 = np.clip(np.floor(fy).astype(np.intp), 0, h - 2)
+        ax, ay = np.clip(fx - x0, 0.0, 1.0), np.clip(fy - y0, 0.0, 1.0)
+        flat = self.distance.ravel()
+        i = y0 * w + x0
+        with np.errstate(invalid="ignore"):  # inf · 0 at the grid's rim: far from every wall
+            top = flat[i] * (1 - ax) + flat[i + 1] * ax
+            bottom = flat[i + w] * (1 - ax) + flat[i + w + 1] * ax
+            out = top * (1 - ay) + bottom * ay
+        return np.where(np.isnan(out), np.inf, out).astype(np.float32)
 
 
 _CACHE: weakref.WeakKeyDictionary[SegmentMap, dict] = weakref.WeakKeyDictionary()
@@ -321,6 +358,18 @@ def global_match(
         pts = pts[finite]
         lines = dataclasses.replace(lines, members=lines.members[finite])
 
+    result = _match_pairs(lines, pts, map, config, kinds)
+    if result.hypotheses or not config.slide_along_parallel:
+        return result
+    slid = _match_sliding(lines, pts, map, config, kinds)
+    if slid.hypotheses:
+        return slid
+    return dataclasses.replace(result, reason=f"{result.reason}; {slid.reason}")
+
+
+def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatchConfig,
+                 kinds: tuple[str, ...]) -> GlobalResult:
+    """Steps 1–5 of the module docstring: hypotheses from pairs of non-parallel lines."""
     pair_i, pair_k = observed_pairs(lines, config)
     if len(pair_i) == 0:
         return GlobalResult(reason=f"fewer than two non-parallel observed lines (angle ≥ "
@@ -358,6 +407,147 @@ def global_match(
     final = cluster(np.array([h.pose for h in hyps]), np.array([h.score for h in hyps]), config)
     hyps = [hyps[j] for j in final]
     return _decide(hyps, n_candidates, config)
+
+
+def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatchConfig,
+                   kinds: tuple[str, ...]) -> GlobalResult:
+    """Hypotheses when no pair of lines fixes the pose: a corridor seen along its length.
+
+    The strongest observed line, put on an oriented map line (β, r), fixes the heading
+    θ = β − θ_obs and the position across it, n·p = r − ρ; the position along it, s in
+    p = n (r − ρ) + s u, is what the points say. Each s on a coarse grid (``slide_step``) over
+    the map is scored by the sample's points weighted 1 − (d / d_in)² by their distance d from
+    a wall: door gaps, their jambs and the rooms seen through the doors line up at one s only,
+    and the weight peaks there where a plain count of points within d_in is flat over ± d_in.
+    The best ``slide_candidates`` local maxima are searched again on a fine grid with d
+    interpolated. The survivors get the full score (with visibility) and are reported like any
+    other hypothesis; their covariance has ``slide_sigma`` along the lines (the precision of
+    the alignment) where a rank-2 estimate would have none.
+
+    Cost: (number of oriented map lines) × (map extent / ``slide_step``) poses × ``slide_points``
+    look-ups, about 80 ms on the office map; only run when the pairs give no hypothesis.
+    """
+    strong = int(np.argmax(lines.n))
+    parallel = np.abs(np.sin(lines.theta - lines.theta[strong])) < math.sin(config.min_pair_angle)
+    if parallel.sum() < 2:
+        return GlobalResult(reason="sliding: fewer than two parallel observed lines")
+    mlines = map_lines_of_kinds(map, kinds)
+    beta = np.concatenate((map.line_alpha[mlines], map.line_alpha[mlines] + np.pi))
+    r = np.concatenate((map.line_r[mlines], -map.line_r[mlines]))
+    lo, hi = _bbox(map, kinds)
+    corners = np.array([[lo[0], lo[1]], [lo[0], hi[1]], [hi[0], lo[1]], [hi[0], hi[1]]])
+    walls = wall_distance(map, kinds, config.dt_cell)
+    sample = pts[_subsample(len(pts), config.slide_points)]
+
+    def poses_at(b: NDArray, offset: NDArray, s: NDArray) -> NDArray:
+        n, u = np.stack((np.cos(b), np.sin(b)), -1), np.stack((-np.sin(b), np.cos(b)), -1)
+        xy = n * offset[:, None] + u * s[:, None]
+        return np.column_stack((xy, wrap_angle(b - lines.theta[strong])))
+
+    def fit(poses: NDArray, smooth: bool) -> NDArray:
+        """The sample's points weighted 1 − (d / d_in)² by their distance d from the nearest
+        wall: peaks where the gaps' edges coincide, where a count of the points within d_in is
+        flat over ± d_in. ``smooth``: d interpolated (exact to a fraction of a cell, 4 look-ups
+        a point); otherwise the cell's value, less a cell (its quantisation is not evidence)."""
+        out = np.empty(len(poses))
+        for sl in _chunks(len(poses), len(sample)):
+            wx, wy = _to_world(poses[sl], sample[:, 0], sample[:, 1])
+            if smooth:
+                d = walls.lookup_smooth(wx, wy)
+            else:
+                d = np.maximum(walls.lookup(wx, wy) - walls.cell, 0.0)
+            d = d / config.inlier_distance
+            out[sl] = np.clip(1.0 - d * d, 0.0, None).mean(axis=1)
+        return out
+
+    # the coarse grid: for each oriented map line, s over the map's extent along it
+    u_all = np.stack((-np.sin(beta), np.cos(beta)), -1)
+    s_lo, s_hi = (corners @ u_all.T).min(axis=0), (corners @ u_all.T).max(axis=0)
+    counts = np.ceil((s_hi - s_lo) / config.slide_step).astype(np.intp) + 1
+    which = np.repeat(np.arange(len(beta)), counts)
+    step_i = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+    s = s_lo[which] + step_i * config.slide_step
+    coarse = poses_at(beta[which], r[which] - lines.rho[strong], s)
+    inside = _inside_map(coarse, map, kinds, config.bbox_margin)
+    coarse, which = coarse[inside], which[inside]
+    if len(coarse) == 0:
+        return GlobalResult(reason="sliding: no pose inside the map")
+    # local maxima along each map line only: a plateau's neighbours would fill every slot
+    f = fit(coarse, smooth=False)
+    same_prev = np.r_[False, which[1:] == which[:-1]]
+    same_next = np.r_[which[:-1] == which[1:], False]
+    peak = ((~same_prev | (f >= np.r_[-1.0, f[:-1]]))
+            & (~same_next | (f > np.r_[f[1:], -1.0])))
+    peaks = np.flatnonzero(peak)
+    best = peaks[_top(f[peaks], config.slide_candidates)]
+    # the fine grid around each coarse maximum, along its own map line
+    offsets = np.arange(-config.slide_step, config.slide_step + 1e-9, config.slide_fine_step)
+    b = np.repeat(beta[which[best]], len(offsets))
+    u = np.stack((-np.sin(b), np.cos(b)), -1)
+    fine = np.repeat(coarse[best], len(offsets), axis=0)
+    fine[:, :2] += u * np.tile(offsets, len(best))[:, None]
+    fine_fit = fit(fine, smooth=True).reshape(len(best), len(offsets))
+    cells = fine.reshape(len(best), len(offsets), 3)[np.arange(len(best)),
+                                                      fine_fit.argmax(axis=1)]
+    peak_fit = fine_fit.max(axis=1)
+    # the view must fix s: slid by ``slide_check`` either way it must fit clearly worse (walls
+    # without gaps fit a corridor with doors equally badly almost anywhere)
+    u_best = u.reshape(len(best), len(offsets), 2)[:, 0]
+    sides = [cells.copy(), cells.copy()]
+    sides[0][:, :2] += config.slide_check * u_best
+    sides[1][:, :2] -= config.slide_check * u_best
+    sharpness = peak_fit - np.maximum(fit(sides[0], smooth=True), fit(sides[1], smooth=True))
+    fixed = sharpness >= config.slide_min_sharpness
+    if not fixed.any():
+        return GlobalResult(reason="sliding: the points do not fix the position along the lines",
+                            n_candidates=len(coarse))
+    cells, peak_fit = cells[fixed], peak_fit[fixed]
+    sample_i = _subsample(len(pts), config.max_score_points)
+    pts_s, members_s = pts[sample_i], lines.members[sample_i]
+    # the weighted fit ranks the clusters: a plain count is flat around the true s
+    keep = cluster(cells, peak_fit, config)[: config.max_refined]
+    hyps = [_slid(cells[j], lines, pts, pts_s, members_s, map, walls, kinds, config)
+            for j in keep]
+    hyps = [h for h in hyps if h is not None and _valid(h, config)]
+    if not hyps:
+        return GlobalResult(reason="sliding: no pose explains two parallel lines",
+                            n_candidates=len(coarse))
+    hyps.sort(key=lambda h: -h.score)
+    return _decide(hyps, len(coarse), config)
+
+
+def _slid(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_s: NDArray,
+          map: SegmentMap, walls: WallDistance, kinds: tuple[str, ...],
+          config: GlobalMatchConfig) -> Hypothesis | None:
+    """A pose found by sliding, scored like a refined one. The lines matched there (all
+    parallel: rank 2) refine the heading and the position across them; along them the pose
+    stays where the points put it, with σ ``slide_sigma``."""
+    hc = config.hough
+    max_range = float(np.sqrt((pts**2).sum(axis=1).max())) + 0.5
+    prior = np.diag([config.refine_sigma_xy**2] * 2 + [config.refine_sigma_theta**2])
+    refs = map.references(pose, max_range, kinds, hc.visibility_rays)
+    matches = associate(lines, refs, pose, prior, hc)
+    if len(matches) < 2:
+        return None
+    disp = estimate_displacement(matches, refs.beta[matches.ref], hc.max_observable_sigma)
+    beta = float(refs.beta[matches.ref[0]])
+    n = np.array([math.cos(beta), math.sin(beta)])
+    u = np.array([-n[1], n[0]])
+    pose = pose.copy()
+    if disp.rank >= 1:  # only the observable part: across the lines, and the heading
+        pose[:2] += n * float(n @ disp.delta[:2])
+        pose[2] = float(wrap_angle(pose[2] + disp.delta[2]))
+    cov = np.zeros((3, 3))
+    var_n = float(n @ disp.cov[:2, :2] @ n) if disp.rank >= 1 else config.refine_sigma_xy**2
+    var_n = min(var_n, config.refine_sigma_xy**2)
+    cov[:2, :2] = var_n * np.outer(n, n) + config.slide_sigma**2 * np.outer(u, u)
+    cov[2, 2] = min(float(disp.cov[2, 2]), config.refine_sigma_theta**2)
+    visible = (seen_directly(pose, pts_s, map, kinds, max_range, config.visibility_margin)[None]
+               if config.check_visibility else None)
+    s = point_scores(pose[None, :], pts_s, members_s, walls, config, visible)
+    pairs = np.column_stack((matches.line, refs.line[matches.ref])).astype(np.intp)
+    return Hypothesis(pose, cov, float(s.score[0]), int(s.n_explained[0]),
+                      float(s.inlier_fraction[0]), pairs, slid=True)
 
 
 def _decide(hyps: list[Hypothesis], n_candidates: int, config: GlobalMatchConfig) -> GlobalResult:
