@@ -105,8 +105,6 @@ def check_camera_accuracy(seed: int, duration: float) -> None:
     assert fused.lost == 0
 
 
-@pytest.mark.xfail(strict=False, reason="the camera's heading target (≤ 0.5°) is not met yet: "
-                   "0.45–0.69° RMSE over seeds (position 1.0–1.7 cm meets its ≤ 3 cm)")
 def test_camera_accuracy_one_minute() -> None:
     check_camera_accuracy(seed=0, duration=SHORT)
 
