@@ -21,7 +21,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.config import LocalizerConfig
 from fusion.evaluation import ATE, ATEResult, Trajectory, chi2_band
+from fusion.events import Odometry, Scan
 from fusion.experiment import localize_simulated
+from fusion.localizer import Localizer
+from fusion.replay import replay
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
 from fusion.tracker import PoseTracker
 
@@ -230,6 +233,23 @@ def check_gating(scenario: str, seed: int, duration: float) -> None:
         f"{clean.position_rmse * 1e3:.3f} mm clean; without the {injected} shifted scans "
         f"{elsewhere * 1e3:.3f} mm, at them "
         f"{rmse(corrupted.ate.position_errors[shifted]) * 1e3:.3f} mm")
+
+
+def test_a_scan_just_before_its_odometry_is_recorded_at_its_own_time() -> None:
+    """A scan stamped a rounding before the odometry reading of the same instant arrives
+    first. Its pose is recorded once that reading is in, not as the previous reading's pose:
+    a scan whose fix is rejected (here: no fix at all) would otherwise lag by 20 ms of motion."""
+    run = simulated("robocup-laser", seed=0, duration=1.0)
+    loc = Localizer(run.map, config_for("robocup-laser"), initial_pose=run.odom_truth[0])
+    speed = 0.5  # m/s along the odometry's x axis, odometry at 50 Hz
+    odometry = [Odometry(k / 50, speed * k / 50, 0.0, 0.0) for k in range(11)]
+    no_returns = Scan(np.nextafter(0.2, 0.0), np.full(3, np.inf), np.zeros(3))
+    events = [*odometry[:10], no_returns, odometry[10]]
+    result = replay(events, loc, progress=False)
+    assert result.statuses == ["no-fix"]
+    start = run.odom_truth[0]
+    expected = start[:2] + speed * 0.2 * np.array([np.cos(start[2]), np.sin(start[2])])
+    assert np.allclose(result.poses[0, :2], expected, atol=1e-6)
 
 
 def test_gate_rejects_one_metre_outliers_one_minute() -> None:
