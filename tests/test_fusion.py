@@ -310,5 +310,6 @@ def test_peak_memory_does_not_grow_with_the_log(tmp_path: Path) -> None:
                   log_dir)
         scans, peaks[minutes] = peak_rss_kib(log_dir, tmp_path / f"trajectory-{minutes}.tum")
         assert scans == 600 * minutes + 1
-    # Six times the log may cost a few MiB of buffers, not six times the memory of its data.
-    assert peaks[60] - peaks[10] <= 8 * 1024, f"peak RSS {peaks} KiB"
+    # Six times the log may cost a little (the visibility memo fills up to its cap, about
+    # 1 MiB), not six times the memory of its data; the issue allows 8 MiB.
+    assert peaks[60] - peaks[10] <= 4 * 1024, f"peak RSS {peaks} KiB"
