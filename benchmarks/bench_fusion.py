@@ -232,13 +232,14 @@ REPLAY_SCRIPT = textwrap.dedent("""
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[-1]})  # one core
     from fusion import Localizer
     from fusion.events import Odometry, PointSet, Scan
-    from fusion.evaluation import Trajectory
     from fusion.io import open_log
+    from fusion.io.tum import read_tum
     from fusion.replay import replay
     from houghloc import SegmentMap
 
     log_dir, config, out, mode = sys.argv[1:5]
-    start = Trajectory.from_tum(log_dir + "/gt.tum").poses[0]  # tracking, as with --initial-pose
+    # tracking, as with --initial-pose: only the first pose (the whole file grows with the log)
+    start = read_tum(log_dir + "/gt.tum", limit=1)[1][0]
     events, _ = open_log(log_dir)
     localizer = Localizer.from_config(config, SegmentMap.from_yaml(log_dir + "/map.yaml"), start)
     started = time.perf_counter()

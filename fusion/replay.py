@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +24,7 @@ from fusion.evaluation import ATE, LostFraction, Trajectory, nees
 from fusion.events import Event, Landmark, Odometry, PointSet, ReadStats, Scan, Truth
 from fusion.io.files import atomic_write_json
 from fusion.io.tum import TumWriter
-from fusion.localizer import Localizer
+from fusion.localizer import Estimate, Localizer
 
 
 @dataclass
@@ -59,8 +60,14 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     ``progress``: a tqdm bar in scans (None: only when writing to a terminal). ``keep=False``
     keeps no per-scan results in memory (they are in the trajectory file): memory then does not
     grow with the log, and only counts and timings are returned.
+
+    A scan taken after the newest odometry reading (its reading for the same instant is next in
+    the stream, or the clocks differ by a rounding) is used at once, but its pose is recorded
+    when the odometry covering its time has arrived: until then the tracker can only assume
+    that the robot has not moved since the last reading — tens of millimetres at walking speed,
+    the whole error of a scan whose fix was rejected. Outputs stay in scan order.
     """
-    t_out: list[float] = []
+    t_out_list: list[float] = []
     poses: list[NDArray] = []
     covs: list[NDArray] = []
     statuses: list[str] = []
@@ -74,6 +81,26 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     n_scans = 0
     first_t = last_t = None
     interrupted = False
+    tracker = localizer.tracker
+    pending: deque[tuple[float, float, Estimate]] = deque()  # (output time, scan time, estimate)
+
+    def record(t_out: float, pose: NDArray, cov: NDArray, status: str) -> None:
+        if keep:
+            t_out_list.append(t_out)
+            poses.append(pose)
+            covs.append(cov)
+            statuses.append(status)
+        if writer is not None:
+            writer.write(t_out, *pose)
+
+    def flush(all_of_them: bool = False) -> None:
+        newest = tracker.odometry_time
+        while pending and (all_of_them or (newest is not None and pending[0][1] <= newest)):
+            t_out, t_scan, est = pending.popleft()
+            at_t = tracker.pose_at(t_scan)
+            pose, cov = at_t if at_t is not None else (est.pose, est.cov)
+            record(t_out, pose, cov, est.status)
+
     started = time.perf_counter()
     try:
         for event in events:
@@ -82,6 +109,8 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             if isinstance(event, Odometry):
                 localizer.on_odometry(event.t, event.x, event.y, event.theta)
                 seconds["odometry"] += time.perf_counter() - t0
+                if pending:
+                    flush()
                 continue
             if isinstance(event, Landmark):
                 localizer.on_landmark(event.t, event.label, event.bearing)
@@ -103,17 +132,16 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             n_scans += 1
             first_t = t_est if first_t is None else first_t
             last_t = t_est
-            if keep:
-                t_out.append(t_est)
-                poses.append(est.pose)
-                covs.append(est.cov)
-                statuses.append(est.status)
-            if writer is not None:
-                writer.write(t_est, *est.pose)
+            newest = tracker.odometry_time
+            if pending or (newest is not None and est.t > newest):
+                pending.append((t_est, est.t, est))
+            else:
+                record(t_est, est.pose, est.cov, est.status)
             bar.update()
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        flush(all_of_them=True)
         bar.close()
         if writer is not None:
             writer.close()
@@ -121,8 +149,9 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     seconds["total"] = time.perf_counter() - started
     seconds.update(localizer.stats.seconds)
     return ReplayResult(
-        np.asarray(t_out), np.asarray(poses).reshape(-1, 3), np.asarray(covs).reshape(-1, 3, 3),
-        statuses, Trajectory(truth_t, truth) if truth_t else None, seconds, n_events, interrupted,
+        np.asarray(t_out_list), np.asarray(poses).reshape(-1, 3),
+        np.asarray(covs).reshape(-1, 3, 3), statuses,
+        Trajectory(truth_t, truth) if truth_t else None, seconds, n_events, interrupted,
         n_scans, (first_t, last_t))
 
 

@@ -121,6 +121,12 @@ class PoseTracker:
         """Time of the newest estimate; None before the first odometry."""
         return self._nodes[-1].t if self._nodes else None
 
+    @property
+    def odometry_time(self) -> float | None:
+        """Time of the newest odometry reading (provisional nodes after it excluded); None
+        before the first one. An estimate later than this assumes no motion since."""
+        return self._nodes[-1 - self._tail].t if self._nodes else None
+
     def pose_at(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """(x, P) at time t: the node at or before t, predicted with the odometry interpolated
         at t. Newer than the newest node: the newest estimate (no extrapolation). Older than

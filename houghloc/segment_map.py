@@ -27,7 +27,9 @@ from houghloc.geometry import TWO_PI
 SegmentKind = Literal["wall", "line"]
 
 
-_VISIBILITY_CACHE_SIZE = 4096  # cells (160 m² at 0.2 m): a robot stays local, memory stays flat
+# Entries (cell × range): a robot stays local, memory stays flat. An entry is one small int32
+# array, about 200 bytes with its key: the full memo costs under 1 MiB.
+_VISIBILITY_CACHE_SIZE = 4096
 
 
 class MapError(ValueError):
@@ -121,7 +123,7 @@ class SegmentMap:
         self._build_index(index_spacing)
         self.visibility_cell = visibility_cell
         self.landmarks: dict[str, tuple[float, float]] = {}
-        self._visibility_cache: dict[tuple, tuple[NDArray, NDArray, NDArray]] = {}
+        self._visibility_cache: dict[tuple, NDArray[np.int32]] = {}
 
     # ---------------------------------------------------------------- construction
     @classmethod
@@ -295,7 +297,7 @@ class SegmentMap:
                round(max_range, 1), kinds, n_rays)
         hit = self._visibility_cache.get(key)
         if hit is not None:
-            return hit
+            return _unpack_visible(hit)
         cand = self.segments_near(origin, max_range)
         cand = cand[np.isin(self.kinds[cand], kinds)]
         walls = cand[self.is_wall[cand]]
@@ -307,7 +309,7 @@ class SegmentMap:
         if clearance > 1.5 * cell:
             if len(self._visibility_cache) >= _VISIBILITY_CACHE_SIZE:
                 self._visibility_cache.pop(next(iter(self._visibility_cache)))
-            self._visibility_cache[key] = out
+            self._visibility_cache[key] = _pack_visible(*out)
         return out
 
     def _first_hits(self, origin: tuple[float, float], segs: NDArray[np.intp], max_range: float,
@@ -331,6 +333,19 @@ class SegmentMap:
         along = np.clip(-(p0 * e).sum(axis=1) / (e * e).sum(axis=1), 0.0, 1.0)
         clearance = float(np.sqrt(((p0 + along[:, None] * e) ** 2).sum(axis=1).min()))
         return segs[np.unique(first[seen])], clearance
+
+
+def _pack_visible(segs: NDArray, lines: NDArray, seg_ref: NDArray) -> NDArray[np.int32]:
+    """One memo entry: [n_segs, n_lines, segs…, lines…, seg_ref…] as a single int32 array
+    (three arrays would cost three ~100-byte headers for a handful of indices)."""
+    return np.concatenate(([len(segs), len(lines)], segs, lines, seg_ref)).astype(np.int32)
+
+
+def _unpack_visible(packed: NDArray[np.int32]
+                    ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    n_segs, n_lines = int(packed[0]), int(packed[1])
+    body = packed[2:].astype(np.intp)
+    return body[:n_segs], body[n_segs:n_segs + n_lines], body[n_segs + n_lines:]
 
 
 def _empty_references() -> References:

@@ -21,7 +21,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.config import LocalizerConfig
 from fusion.evaluation import ATE, ATEResult, Trajectory, chi2_band
+from fusion.events import Odometry, Scan
 from fusion.experiment import localize_simulated
+from fusion.localizer import Localizer
+from fusion.replay import replay
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
 from fusion.tracker import PoseTracker
 
@@ -105,8 +108,6 @@ def check_camera_accuracy(seed: int, duration: float) -> None:
     assert fused.lost == 0
 
 
-@pytest.mark.xfail(strict=False, reason="the camera's heading target (≤ 0.5°) is not met yet: "
-                   "0.45–0.69° RMSE over seeds (position 1.0–1.7 cm meets its ≤ 3 cm)")
 def test_camera_accuracy_one_minute() -> None:
     check_camera_accuracy(seed=0, duration=SHORT)
 
@@ -234,6 +235,23 @@ def check_gating(scenario: str, seed: int, duration: float) -> None:
         f"{rmse(corrupted.ate.position_errors[shifted]) * 1e3:.3f} mm")
 
 
+def test_a_scan_just_before_its_odometry_is_recorded_at_its_own_time() -> None:
+    """A scan stamped a rounding before the odometry reading of the same instant arrives
+    first. Its pose is recorded once that reading is in, not as the previous reading's pose:
+    a scan whose fix is rejected (here: no fix at all) would otherwise lag by 20 ms of motion."""
+    run = simulated("robocup-laser", seed=0, duration=1.0)
+    loc = Localizer(run.map, config_for("robocup-laser"), initial_pose=run.odom_truth[0])
+    speed = 0.5  # m/s along the odometry's x axis, odometry at 50 Hz
+    odometry = [Odometry(k / 50, speed * k / 50, 0.0, 0.0) for k in range(11)]
+    no_returns = Scan(np.nextafter(0.2, 0.0), np.full(3, np.inf), np.zeros(3))
+    events = [*odometry[:10], no_returns, odometry[10]]
+    result = replay(events, loc, progress=False)
+    assert result.statuses == ["no-fix"]
+    start = run.odom_truth[0]
+    expected = start[:2] + speed * 0.2 * np.array([np.cos(start[2]), np.sin(start[2])])
+    assert np.allclose(result.poses[0, :2], expected, atol=1e-6)
+
+
 def test_gate_rejects_one_metre_outliers_one_minute() -> None:
     check_gating("robocup-laser", seed=0, duration=SHORT)
 
@@ -250,17 +268,18 @@ def test_gate_rejects_one_metre_outliers_five_minutes(scenario: str) -> None:
 PEAK_RSS_SCRIPT = textwrap.dedent("""
     import resource, sys
     from fusion import Localizer
-    from fusion.evaluation import Trajectory
     from fusion.io import open_log
+    from fusion.io.tum import read_tum
     from fusion.replay import replay
     from houghloc import SegmentMap
 
     log_dir, config, out = sys.argv[1:4]
-    start = Trajectory.from_tum(log_dir + "/gt.tum").poses[0]
+    start = read_tum(log_dir + "/gt.tum", limit=1)[1][0]  # the start pose only
     events, _ = open_log(log_dir)
     localizer = Localizer.from_config(config, SegmentMap.from_yaml(log_dir + "/map.yaml"), start)
-    result = replay(events, localizer, trajectory_path=out, progress=False)
-    print(len(result.t), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+    # as `houghloc run` without ground truth: the poses go to the TUM file, none is kept
+    result = replay(events, localizer, trajectory_path=out, progress=False, keep=False)
+    print(result.scans, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
 """)
 
 
@@ -291,8 +310,9 @@ def test_peak_memory_does_not_grow_with_the_log(tmp_path: Path) -> None:
                   log_dir)
         scans, peaks[minutes] = peak_rss_kib(log_dir, tmp_path / f"trajectory-{minutes}.tum")
         assert scans == 600 * minutes + 1
-    # Six times the log may cost a few MiB of buffers, not six times the memory of its data.
-    assert peaks[60] - peaks[10] <= 8 * 1024, f"peak RSS {peaks} KiB"
+    # Six times the log may cost a little (the visibility memo fills up to its cap, about
+    # 1 MiB), not six times the memory of its data; the issue allows 8 MiB.
+    assert peaks[60] - peaks[10] <= 4 * 1024, f"peak RSS {peaks} KiB"
 
 
 @pytest.mark.parametrize("min_fix_lines, status", [(1, "accepted"), (2, "no-fix")])
