@@ -22,6 +22,7 @@ logged.
 from __future__ import annotations
 
 import math
+import statistics
 from collections import Counter, deque
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -189,7 +190,7 @@ class AmbiguityManager:
             return True
         fraction = self.fit_fraction(pose, points, kinds)
         recent = self._recent_fit
-        if len(recent) >= 5 and fraction < self.config.misfit_ratio * float(np.median(recent)):
+        if len(recent) >= 5 and fraction < self.config.misfit_ratio * statistics.median(recent):
             self.counts["misfits"] += 1
             return False
         recent.append(fraction)
