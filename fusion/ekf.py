@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
-from scipy.stats import chi2
 
 from houghloc.geometry import compose, wrap_angle
+from houghloc.matching import gate_threshold
 
 _FULL_BASIS = np.eye(3)
 _EIGEN_FLOOR = 1e-12  # smallest variance kept when P has to be repaired
@@ -81,7 +81,7 @@ class PoseEKF(ExtendedKalmanFilter):
         self.P = np.array(cov, dtype=float)
         # χ² quantiles per measurement dimension, computed once: gate_prob None disables gating.
         self.gates = {
-            k: (math.inf if gate_prob is None else float(chi2.ppf(gate_prob, k))) for k in (1, 2, 3)
+            k: (math.inf if gate_prob is None else gate_threshold(gate_prob, k)) for k in (1, 2, 3)
         }
 
     def predict_x(self, u: ArrayLike = 0) -> None:

@@ -52,7 +52,7 @@ class ScanCorrection:
     reason: str
     n_points: int = 0
     grid: HoughGrid | None = None
-    accumulator: NDArray[np.int32] | None = None
+    accumulator: NDArray[np.int64] | None = None
     lines: Lines | None = None
     references: References | None = None
     matched_map_lines: NDArray[np.intp] = field(default_factory=lambda: np.empty(0, np.intp))
@@ -83,7 +83,7 @@ def clean_points(points_xy: ArrayLike) -> tuple[NDArray[np.float64], int]:
 
 
 def observe_lines(points: NDArray[np.float64], config: HoughConfig
-                  ) -> tuple[HoughGrid, NDArray[np.int32], Lines]:
+                  ) -> tuple[HoughGrid, NDArray[np.int64], Lines]:
     """Steps 2–3 and §3.3: vote, find peaks, refine them to lines (strongest first)."""
     grid = make_grid(config)
     acc = vote(points, grid)
@@ -170,22 +170,21 @@ def localize_scan(
     while (disp.dof > 0 and disp.chi2 > gate_threshold(config.gate_probability, disp.dof)
            and len(matches) >= 3 and limit > 0):
         worst = int(np.argmax(disp.per_match))
-        trial = matches.without(worst, f"dropped an inconsistent line (θ="
-                                f"{np.degrees(lines.theta[matches.line[worst]]):.1f}°)")
+        trial = matches.without(worst)
         redo = estimate_displacement(trial, refs.beta[trial.ref], config.max_observable_sigma)
         if redo.rank < disp.rank:
             break
         offset, matches, disp, limit = base + redo.delta, trial, redo, limit - 1
         pose = _apply(guess, offset)
-    reasons = [r for r in matches.reasons if not r.startswith("dropped")]
-    # Lines with two candidate references were left out, not guessed. With a decisive margin set
-    # (real maps model one wall by pieces a few degrees apart, and a far wall then fits both), they
-    # do not make a full fix from the unique matches doubtful: they stay in the reason as a note.
+    # Doubts make the result ambiguous. Lines with two candidate references were left out, not
+    # guessed; with a decisive margin set (real maps model one wall by pieces a few degrees
+    # apart, and a far wall then fits both) they do not make a full fix doubtful: they stay in
+    # the reason as a note.
     lenient = config.decisive_d2_margin is not None and disp.rank == 3
-    notes = reasons if lenient else []
-    reasons = [] if lenient else reasons
+    notes = list(matches.reasons) if lenient else []
+    doubts = [] if lenient else list(matches.reasons)
     if disp.dof > 0 and disp.chi2 > gate_threshold(config.gate_probability, disp.dof):
-        reasons.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
+        doubts.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
     # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
     # directions, against the χ² gate (a filter will run the same test on its innovation).
     step = np.array([offset[0], offset[1], wrap_scalar(offset[2])])
@@ -195,14 +194,14 @@ def localize_scan(
         step = disp.observable.T @ step
         spread = np.linalg.inv(disp.observable.T @ (prior + disp.cov) @ disp.observable)
     if step @ spread @ step > gate_threshold(config.gate_probability, disp.rank):
-        reasons.append("correction far outside the guess's uncertainty")
-    if disp.rank < 3:
-        reasons.insert(0, f"rank {disp.rank}: unobservable along "
-                       + ", ".join(_direction_name(v) for v in disp.unobservable.T))
+        doubts.append("correction far outside the guess's uncertainty")
+    rank_note = [] if disp.rank == 3 else [
+        f"rank {disp.rank}: unobservable along "
+        + ", ".join(_direction_name(v) for v in disp.unobservable.T)]
+    ambiguous = bool(doubts) or (len(matches.ambiguous_lines) > 0 and not lenient)
     return ScanCorrection(
         guess, pose, _wrapped(offset), disp.cov, disp.information, disp.rank, disp.observable,
-        disp.unobservable, matches, bool(len(matches.ambiguous_lines) and not lenient) or len(
-            reasons) > (disp.rank < 3), "; ".join(reasons + notes),
+        disp.unobservable, matches, ambiguous, "; ".join(rank_note + doubts + notes),
         matched_map_lines=refs.line[matches.ref],
         references=refs, **{k: v for k, v in stages.items() if k != "references"})
 

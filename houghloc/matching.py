@@ -14,6 +14,7 @@ the 2×2 blocks J P Jᵀ and the Mahalanobis distances are written out elementwi
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,11 +47,11 @@ class Matches:
     def __len__(self) -> int:
         return len(self.line)
 
-    def without(self, index: int, reason: str) -> Matches:
+    def without(self, index: int) -> Matches:
         """These matches less one (an outlier found by the displacement's consistency test)."""
         keep = np.arange(len(self.line)) != index
         return Matches(self.line[keep], self.ref[keep], self.residual[keep], self.cov[keep],
-                       self.d2[keep], self.ambiguous_lines, (*self.reasons, reason), self.pairs)
+                       self.d2[keep], self.ambiguous_lines, self.reasons, self.pairs)
 
 
 @dataclass(frozen=True)
@@ -66,14 +67,10 @@ class PairTable:
     sin_beta: NDArray[np.float64]  # L
 
 
-_GATES: dict[float, float] = {}
-
-
+@lru_cache(maxsize=64)
 def gate_threshold(probability: float, dof: int = 2) -> float:
-    key = probability + 10 * dof
-    if key not in _GATES:
-        _GATES[key] = float(chi2.ppf(probability, dof))
-    return _GATES[key]
+    """The χ²(dof) quantile at ``probability``: a gate on squared Mahalanobis distances."""
+    return float(chi2.ppf(probability, dof))
 
 
 def associate(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
