@@ -252,7 +252,8 @@ REPLAY_SCRIPT = textwrap.dedent("""
             if isinstance(event, Odometry):
                 localizer.on_odometry(event.t, event.x, event.y, event.theta)
             elif isinstance(event, Scan):
-                localizer.on_scan(event.t, event.ranges, event.angles, event.sensor)
+                localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
+                                  event.max_range)
                 scans, first, last = scans + 1, first if first is not None else event.t, event.t
         seconds, span = dict(localizer.stats.seconds, odometry=0.0), last - first
     wall = time.perf_counter() - started

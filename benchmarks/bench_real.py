@@ -200,7 +200,7 @@ def run(ds: Dataset, limit: int | None = None, config: Path | None = None) -> Ou
             loc.on_odometry(e.t, e.x, e.y, e.theta)
             last_odom = (e.x, e.y, e.theta)
         elif isinstance(e, Scan):
-            est = loc.on_scan(e.t, e.ranges, e.angles, e.sensor)
+            est = loc.on_scan(e.t, e.ranges, e.angles, e.sensor, e.max_range)
             stamp = e.t if e.stamp is None else e.stamp
             t_out.append(stamp)
             poses.append(est.pose)

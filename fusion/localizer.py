@@ -8,6 +8,7 @@ Follow one scan: :meth:`Localizer.on_points` is the whole story.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from time import perf_counter
@@ -99,10 +100,14 @@ class Localizer:
         self.logger.log_odometry(t, (x, y, theta))
 
     def on_scan(self, t: float, ranges: ArrayLike, angles: ArrayLike,
-                sensor: str = "laser") -> Estimate:
-        """A range scan: beams to points (NaN, infinite and no-return beams dropped), then fused."""
+                sensor: str = "laser", max_range: float = math.inf) -> Estimate:
+        """A range scan: beams to points (NaN, infinite and no-return beams dropped), then fused.
+
+        ``max_range``: the scan's own no-return range (e.g. a LaserScan's ``range_max``); returns
+        at or beyond it, or beyond the sensor's configured ``max_range``, are no returns.
+        """
         cfg = self._sensor(sensor)
-        points = ranges_to_points(ranges, angles, cfg.max_range, cfg.min_range)
+        points = ranges_to_points(ranges, angles, min(cfg.max_range, max_range), cfg.min_range)
         return self.on_points(t, points, sensor)
 
     def on_points(self, t: float, points: ArrayLike, sensor: str = "camera") -> Estimate:

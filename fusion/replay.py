@@ -121,7 +121,8 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
                 localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
                 continue
             if isinstance(event, Scan):
-                est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor)
+                est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
+                                        event.max_range)
             elif isinstance(event, PointSet):
                 est = localizer.on_points(event.t, event.points, event.sensor)
             else:

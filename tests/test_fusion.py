@@ -330,3 +330,17 @@ def test_a_fix_from_one_line_is_used_only_when_allowed(min_fix_lines: int, statu
     y = np.linspace(-3.0, 3.0, 200)
     both = np.vstack((one_wall, np.column_stack((np.full_like(y, 4.0), y))))
     assert loc.on_points(0.1, both, "laser").status == "accepted"  # two lines: always used
+
+
+def test_a_scans_own_no_return_range_drops_its_no_returns() -> None:
+    """A scan whose sensor reports 5 m for "no return" (a LaserScan's range_max) below the
+    configured 20 m: those beams are not points."""
+    from fusion.localizer import Localizer
+    from houghloc import SegmentMap
+
+    walls = SegmentMap(np.array([[-5.0, 2.0], [4.0, -5.0]]), np.array([[5.0, 2.0], [4.0, 5.0]]))
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 181)
+    ranges = np.full(len(angles), 5.0)  # nothing within reach: every beam is a no-return
+    loc = Localizer(walls, LocalizerConfig(), initial_pose=(0.0, 0.0, 0.0))
+    assert loc.on_scan(0.0, ranges, angles).correction.n_points == len(angles)  # 20 m limit
+    assert loc.on_scan(0.1, ranges, angles, max_range=5.0).correction.n_points == 0
