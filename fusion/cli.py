@@ -152,9 +152,13 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise CliError("--initial-pose must be three finite numbers")
     args.out.mkdir(parents=True, exist_ok=True)
     logger = _make_logger(args, args.out / "run.rrd")
-    if reference is not None:  # the recording shows the ground truth beside the estimate
-        for t, pose in zip(reference.t, reference.poses, strict=True):
-            logger.log_truth(float(t), pose)
+    if reference is not None:  # the recording shows the ground truth beside the estimate, in time
+        from fusion.events import Truth
+        from fusion.io import merge_by_time
+
+        truth = (Truth(float(t), *map(float, pose))
+                 for t, pose in zip(reference.t, reference.poses, strict=True))
+        events = merge_by_time([events, truth])
     loc = Localizer.from_config(args.config, segment_map, args.initial_pose, logger)
     result = replay(events, loc, trajectory_path=args.out / "trajectory.tum",
                     progress=False if args.no_progress else None, description=args.log.name,

@@ -274,3 +274,8 @@ def test_a_cli_run_records_every_stage_of_every_scan(tmp_path: Path) -> None:
         assert any(e == name or e.startswith(name) for e in entities), name
     n_scans = len((out / "trajectory.tum").read_text().splitlines())
     assert scan_indices(entities["world/scan/points"]) == list(range(n_scans))
+    # the truth path follows the run, a pose per scan (not the file's last pose drawn once)
+    strips = [row for batch in entities["world/path/truth/0"]
+              if "LineStrips2D:strips" in batch.schema.names
+              for row in batch.column("LineStrips2D:strips").to_pylist()]
+    assert len(strips[-1][0]) >= n_scans - 2, (len(strips[-1][0]), n_scans)
