@@ -40,8 +40,9 @@ from houghloc import (
     localize_scan,
     observe_lines,
 )
-from houghloc.geometry import compose, relative, transform_points
+from houghloc.geometry import compose, relative, transform_points, wrap_angle, wrap_scalar
 from houghloc.global_match import wall_distance
+from houghloc.matching import gate_threshold
 
 
 class State(StrEnum):
@@ -298,8 +299,8 @@ class AmbiguityManager:
         inside = []
         for h in tied:
             e = np.asarray(h.pose, float) - moved
-            e[2] = math.remainder(e[2], 2 * math.pi)
-            if e @ np.linalg.solve(spread, e) <= 16.27:  # χ²(3) at 0.999
+            e[2] = wrap_scalar(e[2])
+            if e @ np.linalg.solve(spread, e) <= gate_threshold(0.999, 3):
                 inside.append(h)
         return inside[0] if len(inside) == 1 else None
 
@@ -363,7 +364,7 @@ class AmbiguityManager:
         keep = []
         for h in hyps:
             predicted = math.atan2(position[1] - h[1], position[0] - h[0]) - h[2]
-            if abs(math.remainder(predicted - bearing, 2 * math.pi)) <= tolerance:
+            if abs(wrap_scalar(predicted - bearing)) <= tolerance:
                 keep.append(h)
         if len(keep) == len(hyps):
             return Decision()
@@ -388,17 +389,13 @@ class AmbiguityManager:
         and record the fraction of the scan's points that lie on the map's walls there. A pose
         that leads all others by ``tie_lead`` over a full window is the pose; one that trails the
         best by twice that is dropped."""
-        walls = wall_distance(self.map, kinds, self.config.global_match.dt_cell)
         prior = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
-        inlier = self.config.global_match.inlier_distance
         moved = []
         for pose, fit in zip(self.carried_hypotheses(odom), self._hyp_fit, strict=True):
             fix = localize_scan(points, self.map, pose, hough, pose_cov=prior)
             if fix.ok:
                 pose = fix.pose
-            world = transform_points(pose, points) if len(points) else np.empty((0, 2))
-            near = walls.lookup(world[:, 0], world[:, 1]) <= inlier
-            fit.append(float(near.mean()) if len(near) else 0.0)
+            fit.append(self.fit_fraction(pose, points, kinds))
             moved.append(pose)
         self.hypotheses, self._hyp_odom = moved, odom.copy()
         means = np.array([np.mean(f) for f in self._hyp_fit])
@@ -494,7 +491,7 @@ def visible_parallel_spacing(theta: NDArray, rho: NDArray,
     that nearest-neighbour matching can confuse from here (inf if there are none)."""
     if len(theta) < 2:
         return math.inf
-    dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % (2 * np.pi) - np.pi)
+    dth = np.abs(wrap_angle(theta[:, None] - theta[None, :]))
     gap = np.abs(rho[:, None] - rho[None, :])
     # pieces of one wall a few centimetres apart (a map built from scans) are one wall
     close = (dth < angle_tol) & (gap > min_gap)
