@@ -259,7 +259,8 @@ class _CarmenParser:
         self.stats = source.stats
         self.corrected = source.conventions.corrected
         self.laser_odometry = source.conventions.laser_odometry
-        self._angles: dict[int, NDArray[np.float64]] = {}
+        # beam angles by layout: every scan of a log shares one array (read-only)
+        self._angles: dict[int | tuple[float, float, int], NDArray[np.float64]] = {}
         self._last_t: float | None = None
         # Raw-odometry reconstruction for corrected logs (see the module docstring).
         self._raw: NDArray[np.float64] | None = None  # last emitted raw pose
@@ -376,7 +377,10 @@ class _CarmenParser:
         ranges = _ranges(tokens[9 : 9 + n])
         robot = _pose(tokens, k + 3)
         t = _time(tokens[k + 11])
-        angles = start + resolution * np.arange(n)
+        angles = self._angles.get((start, resolution, n))
+        if angles is None:
+            angles = self._angles[(start, resolution, n)] = start + resolution * np.arange(n)
+            angles.flags.writeable = False
         if n > 1 and abs(angles[-1] - start - fov) > resolution + 1e-6:
             raise _BadRecord(f"field of view {fov:g} disagrees with {n} beams × {resolution:g}")
         limit = min(max_range, self.source.no_return_range) if max_range > 0 else None

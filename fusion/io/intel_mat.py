@@ -25,11 +25,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.events import Event, Odometry, ReadStats, Scan
+from fusion.io.carmen import NO_RETURN_RANGE
 from fusion.io.errors import LogError
 
-INTEL_NO_RETURN = 81.83
-"""The .mat's "no return" value; ranges at or above ``NO_RETURN_RANGE`` are treated as such."""
-NO_RETURN_RANGE = 80.0
+# The .mat marks "no return" by 81.83; ranges at or above NO_RETURN_RANGE are treated as such.
 
 
 @dataclass
@@ -48,13 +47,14 @@ class IntelMatLog:
         return len(self.t)
 
     def __iter__(self) -> Iterator[Event]:
-        self.stats.records = self.stats.skipped = self.stats.backwards_timestamps = 0
+        self.stats.records = self.stats.skipped = 0
         self.stats.warnings.clear()
         self.stats.backwards_timestamps = int(np.count_nonzero(np.diff(self.t) < 0))
         in_order = in_order_times(self.t)
+        finite = (np.isfinite(self.odom).all(axis=1) & np.isfinite(in_order)).tolist()
         for i, t in enumerate(in_order.tolist()):
             x, y, theta = self.odom[i].tolist()
-            if not np.isfinite(self.odom[i]).all() or not np.isfinite(t):
+            if not finite[i]:
                 self.stats.warn(f"row {i + 1}: non-finite odometry or time, skipped")
                 continue
             self.stats.records += 1
