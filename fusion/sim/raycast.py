@@ -32,8 +32,10 @@ def ray_segment_distances(
     inv -= dy * e[:, 0]
     u = dy * p0[:, 0]
     u -= dx * p0[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        np.divide(1.0, inv, out=inv)  # ±inf for parallel rays: u becomes ±inf or nan → a miss
+    # ±inf for parallel rays (and overflow for nearly parallel ones): u becomes ±inf or nan → a
+    # miss
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        np.divide(1.0, inv, out=inv)
         t = num_t * inv
         u *= inv
     miss = u < 0.0
