@@ -217,3 +217,29 @@ class OdometryMotionModel:
         dt_eff = max(dt, c.jump_min_dt)
         sigma_xy, sigma_th = c.max_speed * dt_eff, c.max_turn_rate * dt_eff
         return np.diag([sigma_xy**2, sigma_xy**2, sigma_th**2])
+
+
+def compose_increments(
+    steps: NDArray[np.float64], covs: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """One increment Δ = δ₁ ⊕ δ₂ ⊕ … ⊕ δₘ (robot frame at the first) and its covariance, from
+    m increments ``steps`` (m×3) with covariances ``covs`` (m×3×3), independent of each other.
+
+    Predicting once with (Δ, Q_Δ) gives the same state and covariance as predicting m times: ⊕
+    is associative, and by the chain rule the m-step Jacobians are those of Δ, so
+        F_m⋯F_1 = F(Δ),    F_m⋯F_{k+1} G_k = G(Δ) J_k,    Q_Δ = Σ_k J_k Q_k J_kᵀ,
+    where J_k = ∂Δ/∂δ_k = [[R(φ_k), ⊥(Δ_xy − p_k)], [0, 0, 1]], φ_k the heading before step k,
+    p_k the position after it and ⊥(v) = (−v_y, v_x): turning at step k swings the rest of the
+    path about p_k. The heading of Δ is not wrapped (the prediction wraps the state's).
+    """
+    heading = np.concatenate(([0.0], np.cumsum(steps[:-1, 2])))  # φ_k
+    c, s = np.cos(heading), np.sin(heading)
+    moved = np.column_stack((c * steps[:, 0] - s * steps[:, 1], s * steps[:, 0] + c * steps[:, 1]))
+    after = np.cumsum(moved, axis=0)  # p_k
+    total = np.array([after[-1, 0], after[-1, 1], steps[:, 2].sum()])
+    jac = np.zeros((len(steps), 3, 3))
+    jac[:, 0, 0], jac[:, 0, 1], jac[:, 1, 0], jac[:, 1, 1] = c, -s, s, c
+    jac[:, 0, 2] = after[:, 1] - total[1]
+    jac[:, 1, 2] = total[0] - after[:, 0]
+    jac[:, 2, 2] = 1.0
+    return total, (jac @ covs @ jac.transpose(0, 2, 1)).sum(axis=0)

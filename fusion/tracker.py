@@ -17,6 +17,12 @@ measurement taken between two readings, at its own time, with the odometry inter
 
 So applying a measurement late gives the same estimate as applying it on time. Counters report
 each measurement's first decision; a re-filter may later flip a gate decision without counting.
+
+Estimates are computed when asked for. An odometry reading only records its increment; the
+nodes between two estimates that are needed are bridged by one prediction with the increments
+composed (:func:`~fusion.motion.compose_increments`, exact by the chain rule), and re-filtering
+marks the later nodes for recomputation. At 50 Hz odometry and 10 Hz scans that is one
+prediction per scan instead of five.
 """
 
 from __future__ import annotations
@@ -31,13 +37,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.ekf import PoseEKF, UpdateOutcome
-from fusion.motion import OdometryMotionConfig, OdometryMotionModel, increment, interpolate
+from fusion.motion import (
+    OdometryMotionConfig,
+    OdometryMotionModel,
+    compose_increments,
+    increment,
+    interpolate,
+)
 from houghloc.geometry import wrap_angle
 
 log = logging.getLogger(__name__)
 
 _ZERO3 = np.zeros(3)
 _ZERO33 = np.zeros((3, 3))
+_TRIM_BATCH = 8  # nodes added between two trims
 
 
 @dataclass
@@ -69,8 +82,8 @@ class _Measurement:
 class _Node:
     t: float
     odom: NDArray[np.float64]
-    x: NDArray[np.float64]
-    p: NDArray[np.float64]
+    x: NDArray[np.float64] | None  # None: not computed yet (see PoseTracker._estimate)
+    p: NDArray[np.float64] | None
     step: NDArray[np.float64]  # increment from the previous node's odometry, robot frame
     step_q: NDArray[np.float64]  # its covariance
     jump: bool = False  # the step replaced an implausible odometry jump by zero motion
@@ -104,17 +117,18 @@ class PoseTracker:
         self._x, self._p = x, p  # the estimate while no odometry has arrived
         self._nodes: deque[_Node] = deque()
         self._tail = 0  # provisional nodes: measurements newer than the newest odometry
+        self._trim_length = 0  # trim when the history has this many nodes
 
     # ----------------------------------------------------------------- reading the estimate
     @property
     def pose(self) -> NDArray[np.float64]:
         """The newest estimate (x, y, θ) in ``map`` (a copy)."""
-        return (self._nodes[-1].x if self._nodes else self._x).copy()
+        return (self._estimate(-1).x if self._nodes else self._x).copy()
 
     @property
     def cov(self) -> NDArray[np.float64]:
         """The newest covariance P (a copy)."""
-        return (self._nodes[-1].p if self._nodes else self._p).copy()
+        return (self._estimate(-1).p if self._nodes else self._p).copy()
 
     @property
     def time(self) -> float | None:
@@ -134,10 +148,10 @@ class PoseTracker:
         """
         if not self._nodes:
             return self._x.copy(), self._p.copy()
-        if not math.isfinite(t) or t < self._nodes[0].t:
+        if not math.isfinite(t) or t < self._nodes[self._oldest()].t:
             return None
         j = bisect_right(self._nodes, t, key=_node_time) - 1
-        node = self._nodes[j]
+        node = self._estimate(j)
         if j == len(self._nodes) - 1 or t == node.t:
             return node.x.copy(), node.p.copy()
         _, step, q = self._split(node, self._nodes[j + 1], t)
@@ -151,7 +165,7 @@ class PoseTracker:
         newest reading for later times; None before any odometry or before the history."""
         if not self._nodes:
             return None
-        if not math.isfinite(t) or t < self._nodes[0].t:
+        if not math.isfinite(t) or t < self._nodes[self._oldest()].t:
             return None
         j = bisect_right(self._nodes, t, key=_node_time) - 1
         node = self._nodes[j]
@@ -189,9 +203,7 @@ class PoseTracker:
                 step, q = _ZERO3, self.motion.jump_noise(dt)
             else:
                 step, q = total, self.motion.noise(total)
-            node = _Node(t, odom, lo.x, lo.p, step, q, jump)
-            self._propagate(lo, node)
-            self._nodes.append(node)
+            self._nodes.append(_Node(t, odom, None, None, step, q, jump))
         else:
             self._absorb_provisional(lo_index, t, odom, dt, jump)
         self._trim()
@@ -211,7 +223,7 @@ class PoseTracker:
             n.odom = lo.odom if jump else interpolate(lo.odom, odom, (n.t - lo.t) / dt)
         for n in after:
             n.odom = odom
-        reading = _Node(t, odom, lo.x, lo.p, _ZERO3, _ZERO33, jump)
+        reading = _Node(t, odom, None, None, _ZERO3, _ZERO33, jump)
         prev = lo
         for n in [*before, reading, *after]:
             if n is reading and jump:
@@ -252,12 +264,12 @@ class PoseTracker:
             t = max(t, newest.t)
         if t >= newest.t:
             return self._apply_now(t, meas)
-        if t < self._nodes[0].t:
+        if t < self._nodes[self._oldest()].t:
             self.counts.dropped += 1
             return UpdateOutcome(False, 0.0, 0, status="dropped")
         self.counts.delayed += 1
         j = bisect_right(self._nodes, t, key=_node_time) - 1
-        node = self._nodes[j]
+        node = self._estimate(j)
         if t == node.t:
             self._load(node)
             outcome = self._attach(node, meas)
@@ -280,9 +292,10 @@ class PoseTracker:
     def _apply_now(self, t: float, meas: _Measurement) -> UpdateOutcome:
         newest = self._nodes[-1]
         if t == newest.t:
-            self._load(newest)
+            self._load(self._estimate(-1))
             return self._attach(newest, meas)
         # Newer than any odometry: assume no motion since; fixed when the odometry arrives.
+        self._estimate(-1)
         node = _Node(t, newest.odom, newest.x, newest.p, _ZERO3, _ZERO33)
         self._load(node)
         outcome = self._attach(node, meas)
@@ -306,6 +319,7 @@ class PoseTracker:
             return True
         lo = self._nodes[len(self._nodes) - 1 - self._tail]
         self._nodes = deque([_Node(lo.t, lo.odom, x, p, _ZERO3, _ZERO33)])
+        self._trim_length = 0
         self._tail = 0
         return True
 
@@ -349,28 +363,74 @@ class PoseTracker:
         return outcome
 
     def _refilter(self, start: int) -> None:
-        """Re-run every node from ``start`` on: predict its stored step, re-apply its
-        measurements (uncounted: they were counted when they arrived).
-        """
+        """Mark every node from ``start`` on for recomputation: its stored step is predicted
+        again and its measurements re-applied (uncounted: they were counted when they arrived)
+        when its estimate is next needed."""
         nodes = self._nodes
         for i in range(start, len(nodes)):
+            nodes[i].x = nodes[i].p = None
+
+    def _estimate(self, j: int) -> _Node:
+        """Node ``j`` with its estimate computed: from the nearest computed node before it, one
+        prediction with the composed increments per stretch, the measurements of the nodes in
+        between applied where they were taken (the oldest node is always computed)."""
+        nodes = self._nodes
+        j %= len(nodes)
+        if nodes[j].x is not None:
+            return nodes[j]
+        start = j - 1
+        while nodes[start].x is None:
+            start -= 1
+        for i in range(start + 1, j + 1):
             node = nodes[i]
-            self._propagate(nodes[i - 1], node)
-            for meas in node.measurements:
-                self._ekf.update_pose(meas.z, meas.r, meas.basis)
-            node.x, node.p = self._ekf.x, self._ekf.P
+            if node.measurements or i == j:
+                self._load(nodes[start])
+                if i == start + 1:
+                    self._ekf.predict_odometry(node.step, node.step_q)
+                else:
+                    stretch = [nodes[k] for k in range(start + 1, i + 1)]
+                    self._ekf.predict_odometry(*compose_increments(
+                        np.array([n.step for n in stretch]),
+                        np.array([n.step_q for n in stretch])))
+                for meas in node.measurements:
+                    self._ekf.update_pose(meas.z, meas.r, meas.basis)
+                node.x, node.p = self._ekf.x, self._ekf.P
+                start = i
+        return nodes[j]
+
+    def _oldest(self) -> int:
+        """Index of the oldest node of the history: the last at or before ``history_seconds``
+        before the newest node (older ones wait for trimming, but no longer count)."""
+        nodes = self._nodes
+        return max(0, bisect_right(nodes, nodes[-1].t - self.history_seconds, key=_node_time) - 1)
 
     def _trim(self) -> None:
-        """Forget nodes no longer needed to cover ``history_seconds`` before the newest node;
-        the oldest kept node is at or before that horizon. If the odometry stalls for longer
-        than the history, the oldest provisional node becomes the anchor for the next reading,
-        so a stream of measurements without odometry does not grow the history without bound.
+        """Forget nodes no longer needed to cover ``history_seconds`` before the newest node.
+        The oldest kept node is the newest computed one at or before that horizon, so trimming
+        costs no prediction while estimates are asked for (every scan asks); if none was asked
+        for over a whole history (odometry alone), the node at the horizon is computed. If the
+        odometry stalls for longer than the history, the oldest provisional node becomes the
+        anchor for the next reading, so a stream of measurements without odometry does not
+        grow the history without bound.
         """
         nodes = self._nodes
+        if len(nodes) < self._trim_length:  # a few nodes at a time: each look costs a search
+            return
+        self._trim_length = len(nodes) + _TRIM_BATCH
         horizon = nodes[-1].t - self.history_seconds
-        while len(nodes) > 1 and nodes[1].t <= horizon:
+        if len(nodes) < 2 or nodes[1].t > horizon:
+            return
+        last = self._oldest()
+        keep = last
+        while keep > 0 and nodes[keep].x is None:
+            keep -= 1
+        if nodes[keep].t < horizon - self.history_seconds:
+            self._estimate(last)
+            keep = last
+        for _ in range(keep):
             nodes.popleft()
-            self._tail = min(self._tail, len(nodes) - 1)
+        self._tail = min(self._tail, len(nodes) - 1)
+        self._trim_length = len(nodes) + _TRIM_BATCH
 
     def _invalid(self, message: str) -> None:
         self.counts.invalid += 1

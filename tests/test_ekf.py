@@ -15,6 +15,7 @@ from fusion.motion import (
     OdometryCalibration,
     OdometryMotionConfig,
     OdometryMotionModel,
+    compose_increments,
     increment,
     interpolate,
 )
@@ -189,6 +190,44 @@ def test_covariance_stays_symmetric_positive_definite(seed):
         assert np.isfinite(tracker.pose).all()
         np.testing.assert_array_equal(p, p.T)
         assert np.linalg.eigvalsh(p).min() > 0.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), m=st.integers(1, 12))
+def test_one_prediction_with_composed_increments_equals_one_per_increment(seed, m):
+    """The tracker bridges readings with one prediction: it must be the same EKF prediction."""
+    rng = np.random.default_rng(seed)
+    model = OdometryMotionModel()
+    steps = rng.normal(0.0, [0.1, 0.03, 0.3], (m, 3))
+    covs = np.array([model.noise(step) for step in steps])
+    a = rng.normal(0.0, 0.2, (3, 3))
+    start, p = rng.normal(0.0, [5.0, 5.0, 3.0]), a @ a.T + 1e-4 * np.eye(3)
+    one_by_one, at_once = PoseEKF(start, p), PoseEKF(start, p)
+    for step, cov in zip(steps, covs, strict=True):
+        one_by_one.predict_odometry(step, cov)
+    at_once.predict_odometry(*compose_increments(steps, covs))
+    np.testing.assert_allclose(at_once.x[:2], one_by_one.x[:2], rtol=0, atol=1e-12)
+    assert abs(wrap_angle(at_once.x[2] - one_by_one.x[2])) < 1e-12
+    np.testing.assert_allclose(at_once.P, one_by_one.P, rtol=1e-10, atol=1e-14)
+
+
+def test_estimates_asked_for_rarely_equal_those_asked_for_at_every_reading():
+    rng = np.random.default_rng(8)
+    odometry = _odometry_stream(rng)
+    measurements = sorted(_measurements(rng, odometry), key=lambda m: m[0])
+    eager, lazy = PoseTracker([2.0, 1.0, 0.5], P0), PoseTracker([2.0, 1.0, 0.5], P0)
+    pending = list(measurements)
+    for t, odom in odometry:
+        for tracker in (eager, lazy):
+            tracker.on_odometry(t, *odom)
+        eager.pose  # noqa: B018 - computes the estimate at every reading
+        while pending and pending[0][0] <= t:
+            for tracker in (eager, lazy):
+                tracker.apply(*pending[0])
+            pending.pop(0)
+    np.testing.assert_allclose(lazy.pose, eager.pose, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(lazy.cov, eager.cov, rtol=0, atol=1e-12)
+    assert lazy.counts == eager.counts
 
 
 # ------------------------------------------------------------------- time and late measurements
