@@ -60,7 +60,16 @@ def inverse(a: ArrayLike) -> NDArray[np.float64]:
 
 
 def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
-    """The motion from a to b in a's frame: (⊖a) ⊕ b. Odometry increments are computed this way."""
+    """The motion from a to b in a's frame: (⊖a) ⊕ b = (R(−θa)(b − a)_xy, θb − θa). Odometry
+    increments are computed this way; single poses take a scalar path (once per reading)."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if a.ndim == 1 and b.ndim == 1:
+        ax, ay, at = a.tolist()
+        bx, by, bt = b.tolist()
+        c, s = math.cos(at), math.sin(at)
+        dx, dy = bx - ax, by - ay
+        return np.array([c * dx + s * dy, c * dy - s * dx, wrap_scalar(bt - at)])
     return compose(inverse(a), b)
 
 

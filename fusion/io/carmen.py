@@ -458,13 +458,14 @@ def _time(text: str) -> float:
 
 
 def _pose(tokens: list[str], start: int) -> NDArray[np.float64]:
+    # plain floats first: this runs for every odometry line
     try:
-        pose = np.array(tokens[start : start + 3], dtype=float)
+        x, y, theta = (float(v) for v in tokens[start : start + 3])
     except ValueError:
         raise _BadRecord(f"non-numeric pose {' '.join(tokens[start : start + 3])[:40]!r}") from None
-    if not np.isfinite(pose).all():
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
         raise _BadRecord(f"non-finite pose {' '.join(tokens[start : start + 3])!r}")
-    return pose
+    return np.array((x, y, theta))
 
 
 def _ranges(fields: list[str]) -> NDArray[np.float64]:
