@@ -15,6 +15,7 @@ plus a small floor on each diagonal term (``line_theta_floor_deg``, ``line_rho_f
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -64,11 +65,9 @@ def _moments(points: NDArray, weights: NDArray | None = None) -> NDArray:
     mono = np.empty((len(points), 6))
     mono[:, 0] = 1.0
     mono[:, 1:3] = points
-    np.multiply(points[:, _SQUARE_LEFT], points[:, _SQUARE_RIGHT], out=mono[:, 3:])
+    np.multiply(points[:, :1], points, out=mono[:, 3:5])  # x·x, x·y
+    np.multiply(points[:, 1], points[:, 1], out=mono[:, 5])  # y·y
     return mono if weights is None else mono * weights[:, None]
-
-
-_SQUARE_LEFT, _SQUARE_RIGHT = np.array([0, 0, 1]), np.array([0, 1, 1])  # x·x, x·y, y·y
 
 
 def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
@@ -111,10 +110,10 @@ def _split_pieces(points: NDArray, label: NDArray[np.intp], cos_t: NDArray, sin_
     # lines are at most a few hundred metres long: the line index dominates the sort key
     order = np.argsort(lab * 1.0e4 + along)
     lab, along = lab[order], along[order]
-    starts = np.empty(len(lab), dtype=bool)
-    starts[0] = True
+    starts = np.empty(len(lab), dtype=np.intp)
+    starts[0] = 0
     np.logical_or(along[1:] - along[:-1] > config.piece_gap, lab[1:] != lab[:-1], out=starts[1:])
-    piece = np.cumsum(starts) - 1
+    piece = np.cumsum(starts, out=starts)  # pieces numbered from 0
     small = np.bincount(piece)[piece] < config.min_piece_points
     out = label.copy()
     out[idx[order[small]]] = -1
@@ -192,9 +191,11 @@ def _distinct(mask: NDArray[np.bool_], n: NDArray, theta: NDArray, rho: NDArray,
     m = mask.astype(np.float32)
     shared = m.T @ m  # K×K counts of common inliers
     same = shared > 0.5 * np.minimum(n[:, None], n)
-    dth = np.abs((theta[:, None] - theta[None, :] + np.pi) % TWO_PI - np.pi)
-    same |= (dth < 0.5 * config.theta_step) & (np.abs(rho[:, None] - rho[None, :])
-                                               < 0.5 * config.rho_step)
+    # |θᵢ − θⱼ| < δθ/2 (wrapped) as cos(θᵢ − θⱼ) = cos θᵢ cos θⱼ + sin θᵢ sin θⱼ > cos(δθ/2)
+    cos_t, sin_t = np.cos(theta), np.sin(theta)
+    near = np.multiply.outer(cos_t, cos_t) + np.multiply.outer(sin_t, sin_t)
+    same |= (near > math.cos(0.5 * config.theta_step)) & (np.abs(rho[:, None] - rho[None, :])
+                                                          < 0.5 * config.rho_step)
     # stronger[i, j]: line j outranks line i (more inliers; on a tie, the earlier, stronger peak)
     stronger = (n > n[:, None]) | ((n == n[:, None]) & _earlier(len(n)))
     return (n > 0) & ~(same & stronger).any(axis=1)
