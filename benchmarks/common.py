@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from houghloc import SegmentMap
+from houghloc.geometry import ray_segment_distances
 
 REPO = Path(__file__).resolve().parents[1]
 MAPS = REPO / "configs" / "maps"
@@ -42,13 +43,7 @@ def ray_scan(m: SegmentMap, pose: np.ndarray, n_beams: int = 361, fov: float = n
     d = np.column_stack((np.cos(ang), np.sin(ang)))
     near = m.segments_near(pose[:2], max_range)
     walls = near[m.is_wall[near]]
-    p0 = m.starts[walls] - pose[:2]
-    e = m.ends[walls] - m.starts[walls]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        den = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]
-        t = (p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]) / den
-        u = (p0[:, 0] * d[:, 1:] - p0[:, 1] * d[:, :1]) / den
-    r = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf).min(axis=1)
+    r = ray_segment_distances(pose, d, m.starts[walls], m.ends[walls]).min(axis=1, initial=np.inf)
     r = r + rng.normal(0.0, sigma, n_beams)
     keep = r < max_range
     return np.column_stack((r * np.cos(rel), r * np.sin(rel)))[keep]

@@ -62,13 +62,10 @@ def inverse(a: ArrayLike) -> NDArray[np.float64]:
 def relative(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """The motion from a to b in a's frame: (⊖a) ⊕ b = (R(−θa)(b − a)_xy, θb − θa). Odometry
     increments are computed this way; single poses take a scalar path (once per reading)."""
-    a = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
     if a.ndim == 1 and b.ndim == 1:
-        ax, ay, at = a.tolist()
-        bx, by, bt = b.tolist()
-        c, s = math.cos(at), math.sin(at)
-        dx, dy = bx - ax, by - ay
+        (ax, ay, at), (bx, by, bt) = a.tolist(), b.tolist()
+        c, s, dx, dy = math.cos(at), math.sin(at), bx - ax, by - ay
         return np.array([c * dx + s * dy, c * dy - s * dx, wrap_scalar(bt - at)])
     return compose(inverse(a), b)
 
@@ -115,3 +112,37 @@ def inverse_3x3(m: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array(((co_a, c * h - b * i, b * f - c * e),
                      (co_b, a * i - c * g, c * d - a * f),
                      (co_c, b * g - a * h, a * e - b * d))) / det
+
+
+def ray_segment_distances(
+    origin: ArrayLike, dirs: NDArray[np.float64], starts: NDArray[np.float64],
+    ends: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """Distance t along each unit ray to each segment (B×S), ``inf`` where it misses.
+
+    Solves ``o + t·d = a + u·(b − a)`` with 2-D cross products (Cramer's rule) and keeps
+    ``t > 0``, ``0 ≤ u ≤ 1``. Rays parallel to a segment never hit it (a grazing ray sees
+    the segment's end-on neighbour instead, as a real scanner would).
+    """
+    if len(starts) == 0:
+        return np.full((len(dirs), 0), np.inf)
+    p0 = starts - np.asarray(origin, dtype=float)[:2]  # S×2
+    e = ends - starts
+    dx, dy = dirs[:, :1], dirs[:, 1:]
+    num_t = p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]  # S
+    # In-place arithmetic: the inner loop of the simulator and of the map's visibility (B×S).
+    inv = dx * e[:, 1]
+    inv -= dy * e[:, 0]
+    u = dy * p0[:, 0]
+    u -= dx * p0[:, 1]
+    # ±inf for parallel rays (and overflow for nearly parallel ones): u becomes ±inf or nan → a
+    # miss
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        np.divide(1.0, inv, out=inv)
+        t = num_t * inv
+        u *= inv
+    miss = u < 0.0
+    miss |= u > 1.0
+    miss |= ~(t > 1e-9)
+    t[miss] = np.inf
+    return t

@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from scipy.spatial import cKDTree
 
-from houghloc.geometry import TWO_PI
+from houghloc.geometry import TWO_PI, ray_segment_distances
 
 SegmentKind = Literal["wall", "line"]
 
@@ -317,18 +317,13 @@ class SegmentMap:
         """Segments that are the first wall hit by at least one of ``n_rays`` rays, and the
         distance from the origin to the nearest of ``segs``."""
         phi = np.linspace(0.0, TWO_PI, n_rays, endpoint=False)
-        d = np.column_stack((np.cos(phi), np.sin(phi)))  # R×2
-        p0 = self.starts[segs] - origin  # S×2
-        e = self.ends[segs] - self.starts[segs]
-        # origin + t·d = p0 + u·e  →  solve with 2-D cross products (Cramer's rule)
-        denom = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]  # R×S
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = (p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]) / denom
-            u = (p0[:, 0] * d[:, 1:] - p0[:, 1] * d[:, :1]) / denom
-        hit = (np.abs(denom) > 1e-12) & (t > 1e-9) & (t <= max_range) & (u >= 0) & (u <= 1)
-        t = np.where(hit, t, np.inf)
+        t = ray_segment_distances(origin, np.column_stack((np.cos(phi), np.sin(phi))),
+                                  self.starts[segs], self.ends[segs])  # R×S
+        t[t > max_range] = np.inf
         first = np.argmin(t, axis=1)
         seen = np.isfinite(t[np.arange(n_rays), first])
+        p0 = self.starts[segs] - origin  # S×2
+        e = self.ends[segs] - self.starts[segs]
         # distance to the nearest segment: the projection of the origin, clamped to the segment
         along = np.clip(-(p0 * e).sum(axis=1) / (e * e).sum(axis=1), 0.0, 1.0)
         clearance = float(np.sqrt(((p0 + along[:, None] * e) ** 2).sum(axis=1).min()))

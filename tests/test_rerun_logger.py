@@ -29,6 +29,7 @@ from fusion.rerun_logger import (
 )
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
+from houghloc.geometry import ray_segment_distances
 
 N_SCANS = 12
 COV = np.diag([0.02**2, 0.03**2, np.radians(1.0) ** 2])
@@ -41,13 +42,7 @@ def wall_scan(m: SegmentMap, pose: np.ndarray, n_beams: int = 361, sigma: float 
     bearing = np.linspace(-np.pi, np.pi, n_beams, endpoint=False)
     d = np.column_stack((np.cos(bearing + pose[2]), np.sin(bearing + pose[2])))
     walls = np.flatnonzero(m.is_wall)
-    p0 = m.starts[walls] - pose[:2]
-    e = m.ends[walls] - m.starts[walls]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        den = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]
-        t = (p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]) / den
-        u = (p0[:, 0] * d[:, 1:] - p0[:, 1] * d[:, :1]) / den
-    r = np.where((t > 0) & (u >= 0) & (u <= 1), t, np.inf).min(axis=1)
+    r = ray_segment_distances(pose, d, m.starts[walls], m.ends[walls]).min(axis=1)
     r = r + rng.normal(0.0, sigma, n_beams)
     keep = np.isfinite(r)
     return np.column_stack((r * np.cos(bearing), r * np.sin(bearing)))[keep]

@@ -20,7 +20,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.sim.config import CameraConfig
 from fusion.sim.laser import CLUTTER, MOVING_OBSTACLE, SPURIOUS, visible_walls
-from fusion.sim.raycast import ray_disc_distances, ray_segment_distances
+from fusion.sim.raycast import ray_disc_distances
+from houghloc.geometry import ray_segment_distances
 from houghloc.segment_map import SegmentMap
 
 FloatArray = NDArray[np.float64]

@@ -14,7 +14,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.sim.config import LaserConfig
-from fusion.sim.raycast import ray_disc_distances, ray_segment_distances
+from fusion.sim.raycast import ray_disc_distances
+from houghloc.geometry import ray_segment_distances
 from houghloc.segment_map import SegmentMap
 
 FloatArray = NDArray[np.float64]

@@ -1,4 +1,5 @@
-"""Vectorised planar geometry for the simulator: rays against segments and discs, distances.
+"""Vectorised planar geometry for the simulator: rays against discs, distances (rays against
+segments: :func:`houghloc.geometry.ray_segment_distances`).
 
 Segments are arrays of starts and ends (S×2); discs are (D×3) rows ``[x, y, r]``. Every function
 works on whole arrays of rays/points at once (no Python loop over beams or points).
@@ -10,39 +11,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
-
-
-def ray_segment_distances(
-    origin: FloatArray, dirs: FloatArray, starts: FloatArray, ends: FloatArray
-) -> FloatArray:
-    """Distance t along each unit ray to each segment (B×S), ``inf`` where it misses.
-
-    Solves ``o + t·d = a + u·(b − a)`` with 2-D cross products (Cramer's rule) and keeps
-    ``t > 0``, ``0 ≤ u ≤ 1``. Rays parallel to a segment never hit it (a grazing ray sees
-    the segment's end-on neighbour instead, as a real scanner would).
-    """
-    if len(starts) == 0:
-        return np.full((len(dirs), 0), np.inf)
-    p0 = starts - origin  # S×2
-    e = ends - starts
-    dx, dy = dirs[:, :1], dirs[:, 1:]
-    num_t = p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]  # S
-    # In-place arithmetic: this is the simulator's innermost loop (B×S per scan).
-    inv = dx * e[:, 1]
-    inv -= dy * e[:, 0]
-    u = dy * p0[:, 0]
-    u -= dx * p0[:, 1]
-    # ±inf for parallel rays (and overflow for nearly parallel ones): u becomes ±inf or nan → a
-    # miss
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        np.divide(1.0, inv, out=inv)
-        t = num_t * inv
-        u *= inv
-    miss = u < 0.0
-    miss |= u > 1.0
-    miss |= ~(t > 1e-9)
-    t[miss] = np.inf
-    return t
 
 
 def ray_disc_distances(origin: FloatArray, dirs: FloatArray, discs: FloatArray) -> FloatArray:
