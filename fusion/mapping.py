@@ -42,10 +42,7 @@ from __future__ import annotations
 
 import io
 import math
-import os
-import tempfile
-from collections.abc import Iterable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from itertools import islice
 from pathlib import Path
@@ -58,6 +55,7 @@ from scipy.spatial import cKDTree
 
 from fusion.events import Scan
 from fusion.io import open_log
+from fusion.io.files import atomic_write_bytes, atomic_write_text
 from houghloc.geometry import ranges_to_points, transform_points
 from houghloc.segment_map import MapError, SegmentMap
 
@@ -979,40 +977,8 @@ def build_map(
 
 
 def write_map_yaml(segment_map: SegmentMap, path: str | Path) -> Path:
-    """``SegmentMap.to_yaml`` into a temporary file beside ``path``, then ``os.replace``."""
-    path = Path(path)
-    with _temporary_beside(path) as tmp:
-        segment_map.to_yaml(tmp)
-        os.replace(tmp, path)
-    return path
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temporary file in the same directory, then
-    ``os.replace``)."""
-    path = Path(path)
-    with _temporary_beside(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    return path
-
-
-@contextmanager
-def _temporary_beside(path: Path) -> Iterator[Path]:
-    """A temporary file name in the directory of ``path`` (so ``os.replace`` is atomic), removed
-    afterwards unless it was renamed."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    tmp = Path(name)
-    tmp.chmod(0o644)  # mkstemp makes it private; a map is an ordinary, readable file
-    try:
-        yield tmp
-    finally:
-        tmp.unlink(missing_ok=True)  # already gone after a successful os.replace
+    """The map's YAML written atomically to ``path``."""
+    return atomic_write_text(path, segment_map.to_yaml_text())
 
 
 def render_map_png(grid: OccupancyGrid, segment_map: SegmentMap, path: str | Path,

@@ -178,8 +178,12 @@ class SegmentMap:
             out["landmarks"] = [{"id": k, "at": list(v)} for k, v in self.landmarks.items()]
         return out
 
+    def to_yaml_text(self) -> str:
+        """The map YAML of DESIGN §6."""
+        return yaml.safe_dump(self.to_dict(), sort_keys=False, width=120)
+
     def to_yaml(self, path: str | Path) -> None:
-        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False, width=120))
+        Path(path).write_text(self.to_yaml_text())
 
     def __len__(self) -> int:
         return len(self.starts)

@@ -5,29 +5,47 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 
-def atomic_write_text(path: str | Path, text: str, encoding: str = "utf-8") -> Path:
-    """Write ``text`` to ``path`` atomically: a temporary file in the same directory, then
-    ``os.replace`` (atomic on POSIX and Windows when both names are on one filesystem, which the
-    same directory guarantees). Returns the path."""
+@contextmanager
+def atomic_file(path: str | Path, mode: str = "w", encoding: str = "utf-8") -> Iterator[IO]:
+    """A file to write ``path`` through: a temporary file in the same directory, flushed to disk
+    and renamed over ``path`` with ``os.replace`` when the block ends (atomic on POSIX and
+    Windows when both names are on one filesystem, which the same directory guarantees). If the
+    block raises, even on KeyboardInterrupt, the temporary file is removed and ``path`` is left
+    as it was. ``mode``: ``"w"`` (text, no newline translation) or ``"wb"``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    text = {} if "b" in mode else {"encoding": encoding, "newline": ""}
     try:
-        with os.fdopen(fd, "w", encoding=encoding, newline="") as f:
-            f.write(text)
+        with os.fdopen(fd, mode, **text) as f:
+            yield f
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp_name, 0o666 & ~_umask())  # mkstemp makes it private; a result is not
         os.replace(tmp_name, path)
     except BaseException:
-        # Leave no stray temporary file behind, whatever went wrong (even KeyboardInterrupt).
         Path(tmp_name).unlink(missing_ok=True)
         raise
-    return path
+
+
+def atomic_write_text(path: str | Path, text: str, encoding: str = "utf-8") -> Path:
+    """Write ``text`` to ``path`` atomically (:func:`atomic_file`). Returns the path."""
+    with atomic_file(path, "w", encoding) as f:
+        f.write(text)
+    return Path(path)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_file`). Returns the path."""
+    with atomic_file(path, "wb") as f:
+        f.write(data)
+    return Path(path)
 
 
 def _umask() -> int:

@@ -41,7 +41,6 @@ turn_axis ipc_timestamp ipc_hostname logger_timestamp
 from __future__ import annotations
 
 import math
-import os
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -51,6 +50,7 @@ import numpy as np
 import yaml
 
 from fusion.events import PointSet, ReadStats
+from fusion.io.files import atomic_file
 from fusion.sim.config import ScenarioConfig
 from fusion.sim.poses import heading_quaternion, increments
 from fusion.sim.run import SimRun
@@ -61,18 +61,10 @@ LASER_TYPE_SIMULATED = 3
 
 
 def _atomic_write(path: Path, write: Callable[[IO[str]], None]) -> Path:
-    """Write through a temporary file in the same directory, then rename over ``path``: a reader
-    never sees a half-written file."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    """Write through :func:`~fusion.io.files.atomic_file`: a reader never sees a half-written
+    file."""
+    with atomic_file(path) as f:
+        write(f)
     return path
 
 
