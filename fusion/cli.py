@@ -282,16 +282,8 @@ def _open_log(path: Path) -> tuple[Any, Any, Path | None]:
     """Events, read statistics, and the ground truth a simulator directory carries."""
     from fusion.io import open_log
 
-    sources = []
-    sim_gt = None
-    if path.is_dir():
-        from fusion.sim import read_camera_points
-
-        if (path / "camera.points").exists():
-            sources.append(lambda d: read_camera_points(d / "camera.points"))
-        if (path / "gt.tum").exists():
-            sim_gt = path / "gt.tum"
-    events, stats = open_log(path, extra_sources=sources)
+    sim_gt = path / "gt.tum" if path.is_dir() and (path / "gt.tum").exists() else None
+    events, stats = open_log(path)
     return events, stats, sim_gt
 
 

@@ -544,6 +544,21 @@ def test_rosbag1_round_trip(tmp_path):
     assert len(list(events)) == 4 and stats.records == 4
 
 
+def test_a_simulator_directory_brings_its_camera_points_and_their_warnings(tmp_path):
+    write_log(tmp_path / "log.carmen", RAW_LOG)
+    (tmp_path / "camera.points").write_text(
+        "POINTS 1.1 1.3 2 0.5 0.0 0.6 0.1\n"
+        "POINTS 1.5 oops\n"  # truncated: skipped, counted and named by its line
+        "POINTS 1.6 1.7 1 1.0 1.0\n")
+    with pytest.warns(UserWarning, match="camera.points:2"):
+        events, stats = open_log(tmp_path)
+        events = list(events)
+    points = [e for e in events if isinstance(e, PointSet)]
+    assert [(p.t, p.arrival, len(p.points)) for p in points] == [(1.1, 1.3, 2), (1.6, 1.7, 1)]
+    assert stats.skipped == 1 and any("camera.points:2" in w for w in stats.warnings)
+    assert stats.records == 5 + 2
+
+
 def test_rosbag2_round_trip_and_open_log(tmp_path):
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore

@@ -4,8 +4,7 @@
 
 * ``*.mat`` → the Intel lab ``.mat`` (``read_intel_mat``);
 * a directory with ``log.carmen`` → the simulator's output directory: its CARMEN log, merged in time
-  with any extra event sources (the simulator module passes a reader of ``camera.points`` as
-  ``extra_sources``);
+  with its ``camera.points`` if there is one (and any ``extra_sources``);
 * a directory with ``metadata.yaml``, a ``*.bag``, ``*.mcap`` or ``*.db3`` → a ROS bag;
 * anything else → a CARMEN text log, plain or gzip (``read_carmen``).
 
@@ -55,6 +54,7 @@ __all__ = [
 ]
 
 SIM_LOG_NAME = "log.carmen"
+SIM_CAMERA_NAME = "camera.points"
 """The CARMEN log inside a simulator output directory."""
 
 ROSBAG_SUFFIXES = (".bag", ".mcap", ".db3")
@@ -73,8 +73,9 @@ def open_log(
     """Open any supported log; return (events iterator, stats filled while iterating).
 
     ``reader_options`` go to the chosen reader (e.g. ``raw_odometry=`` or ``spacing=`` for CARMEN,
-    ``scan_topics=`` for bags). ``extra_sources`` only apply to a simulator directory: their events
-    are merged with the CARMEN log's by time (stable: on equal times the log's events come first).
+    ``scan_topics=`` for bags). A simulator directory's ``camera.points`` and ``extra_sources``
+    are merged with its CARMEN log by time (stable: on equal times the log's events come first);
+    the camera file's bad records are counted and warned about in the same stats.
     Raises ``LogError`` for a missing path or a directory that is neither kind.
     """
     path = Path(path)
@@ -84,6 +85,10 @@ def open_log(
         if (path / SIM_LOG_NAME).is_file():
             carmen = read_carmen(path / SIM_LOG_NAME, **reader_options)
             streams = [iter(carmen), *(iter(source(path)) for source in extra_sources)]
+            if (path / SIM_CAMERA_NAME).is_file():
+                from fusion.sim.files import read_camera_points  # the simulator imports fusion.io
+
+                streams.append(read_camera_points(path / SIM_CAMERA_NAME, carmen.stats))
             events = merge_by_time(streams) if len(streams) > 1 else streams[0]
             return events, carmen.stats
         if (path / "metadata.yaml").is_file():
