@@ -51,8 +51,9 @@ import yaml
 
 from fusion.events import PointSet, ReadStats
 from fusion.io.files import atomic_file
+from fusion.io.tum import format_tum_line
 from fusion.sim.config import ScenarioConfig
-from fusion.sim.poses import heading_quaternion, increments
+from fusion.sim.poses import increments
 from fusion.sim.run import SimRun
 from fusion.sim.world import resolve_map_path
 
@@ -147,12 +148,9 @@ def _write_carmen(run: SimRun, f: IO[str], laser_message: str) -> None:
 
 # ---------------------------------------------------------------------------------- TUM
 def _write_tum(run: SimRun, f: IO[str]) -> None:
-    truth = run.truth
-    qz, qw = heading_quaternion(truth[:, 2])
     f.write("# ground truth: t x y z qx qy qz qw\n")
-    for t, (x, y, _), z, w in zip(run.truth_t.tolist(), truth.tolist(), qz.tolist(), qw.tolist(),
-                                  strict=True):
-        f.write(f"{t:.6f} {x:.6f} {y:.6f} 0 0 0 {z:.9f} {w:.9f}\n")
+    f.writelines(format_tum_line(t, x, y, theta) for t, (x, y, theta)
+                 in zip(run.truth_t.tolist(), run.truth.tolist(), strict=True))
 
 
 # ---------------------------------------------------------------------------------- scenario

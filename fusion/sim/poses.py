@@ -27,9 +27,3 @@ def interpolate_poses(t_query: ArrayLike, t: FloatArray, poses: FloatArray) -> F
         np.interp(tq, t, poses[:, 1]),
         wrap_angle(np.interp(tq, t, theta)),
     ))
-
-
-def heading_quaternion(theta: ArrayLike) -> tuple[FloatArray, FloatArray]:
-    """(q_z, q_w) of a rotation by θ about z (TUM files store x y z qx qy qz qw)."""
-    half = 0.5 * np.asarray(theta, dtype=float)
-    return np.sin(half), np.cos(half)
