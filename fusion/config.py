@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from fusion.ambiguity import AmbiguityConfig
 from fusion.motion import OdometryMotionConfig
@@ -40,6 +40,16 @@ class SensorConfig(_Strict):
     min_fix_lines: int = Field(
         1, ge=1, description="matched lines a fix needs to be used: a single line cannot be "
         "checked against another, and in clutter it is often matched to a near-parallel wall")
+
+    @model_validator(mode="after")
+    def _grid_within_range(self) -> SensorConfig:
+        # No line farther than the sensor's range (from the robot's origin, where the points
+        # are taken) can be seen: the Hough grid stops there, one cell beyond, and every scan
+        # votes into and searches that many fewer cells.
+        reach = self.max_range + math.hypot(*self.mount[:2]) + self.hough.rho_step
+        if self.hough.rho_max > reach:
+            object.__setattr__(self, "hough", self.hough.model_copy(update={"rho_max": reach}))
+        return self
 
 
 class FilterConfig(_Strict):

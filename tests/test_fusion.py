@@ -345,3 +345,14 @@ def test_a_scans_own_no_return_range_drops_its_no_returns() -> None:
     loc = Localizer(walls, LocalizerConfig(), initial_pose=(0.0, 0.0, 0.0))
     assert loc.on_scan(0.0, ranges, angles).correction.n_points == len(angles)  # 20 m limit
     assert loc.on_scan(0.1, ranges, angles, max_range=5.0).correction.n_points == 0
+
+
+def test_the_hough_grid_stops_at_the_sensors_reach() -> None:
+    """A line farther than the sensor's range (plus its mount's offset) cannot be seen: the grid
+    is cut there, and a smaller configured ρ range is kept."""
+    config = LocalizerConfig.from_dict({"sensors": {
+        "near": {"max_range": 4.0, "mount": [0.3, 0.4, 0.0], "hough": {"rho_step": 0.1}},
+        "short": {"max_range": 30.0, "hough": {"rho_max": 8.0}},
+    }})
+    assert config.sensors["near"].hough.rho_max == pytest.approx(4.0 + 0.5 + 0.1)
+    assert config.sensors["short"].hough.rho_max == 8.0
