@@ -133,13 +133,20 @@ class Localizer:
         fix = localize_scan(points, self.map, guess, cfg.hough, pose_cov=guess_cov)
         t1 = perf_counter()
         self.stats.seconds["hough"] += t1 - t0
-        if fix.ambiguous:
-            estimate = self._finish(t, "ambiguous", fix, None, sensor, points)
-        elif fix.rank == 0 or _matched_lines(fix) < cfg.min_fix_lines:
-            estimate = self._finish(t, "no-fix", fix, None, sensor, points)
-        elif not self.manager.fix_fits_map(fix.pose, points, cfg.hough.reference_kinds):
+        kinds = cfg.hough.reference_kinds
+        guess_fit = (self.manager.fit_fraction(guess, points, kinds)
+                     if self.manager.judges_by_fit else None)
+        vouched = not fix.ambiguous and fix.rank > 0 and _matched_lines(fix) >= cfg.min_fix_lines
+        # a fix the matcher cannot vouch for is used when the scan itself does: clearly more of
+        # its points on walls than at the guess (the odometry slipped in a turn)
+        by_fit = (not vouched and fix.rank > 0
+                  and self.manager.fix_gains_fit(fix.pose, points, kinds, guess_fit))
+        if not (vouched or by_fit):
+            estimate = self._finish(t, "ambiguous" if fix.ambiguous else "no-fix", fix, None,
+                                    sensor, points)
+        elif vouched and not self.manager.fix_fits_map(fix.pose, points, kinds, guess_fit):
             # the scan lies off the map's walls at the fix: the robot is elsewhere (a kidnap),
-            # however small the innovation of the one or two lines it matched
+            # or the lines were matched to the wrong walls, however small the innovation
             estimate = self._finish(t, "misfit", fix, None, sensor, points)
         else:
             newest = self.tracker.time
@@ -152,7 +159,7 @@ class Localizer:
         refs = fix.references
         spacing = visible_parallel_spacing(refs.theta, refs.rho) if refs is not None else None
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
-                                   self.tracker.odometry_at(t), spacing)
+                                   self.tracker.odometry_at(t), spacing, guess_fit)
         return estimate
 
     def on_landmark(self, t: float, label: str, bearing: float) -> None:

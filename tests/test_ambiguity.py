@@ -164,6 +164,39 @@ def test_misfit_is_relative_to_recent_fixes(office):
     assert manager.counts["misfits"] == 1
 
 
+def test_fit_judges_fixes_the_matcher_cannot(office):
+    """With the fit rules on: a fix that moves the scan off walls the guess had it on is a misfit
+    (however well it passed the gates), one the matcher could not vouch for is used when it puts
+    clearly more points on walls than the guess, and a scan whose guess still fits as well as the
+    accepted ones did does not count as a failure."""
+    from fusion.ambiguity import AmbiguityConfig, AmbiguityManager
+
+    config = AmbiguityConfig(max_fit_loss=0.1, min_fit_gain=0.03, hold_fit_ratio=0.9,
+                             misfit_ratio=0.0, max_scans_without_fix=3)
+    manager = AmbiguityManager(office, config)
+    pose = np.array([5.0, 6.0, 0.0])
+    scan = np.column_stack((np.linspace(-4, 0, 60), np.full(60, 1.0)))  # the y = 7 wall
+    on_wall = manager.fit_fraction(pose, scan)
+    off_wall = pose + [0.0, 0.3, 0.0]
+    assert on_wall == pytest.approx(1.0) and manager.fit_fraction(off_wall, scan) == 0.0
+    assert manager.fix_fits_map(pose, scan, guess_fit=on_wall)
+    assert manager.fix_fits_map(off_wall, scan, guess_fit=on_wall) is False
+    assert manager.fix_fits_map(off_wall, scan, guess_fit=0.0)  # nothing lost: not judged
+    assert manager.fix_gains_fit(pose, scan, ("wall",), guess_fit=0.0)
+    assert not manager.fix_gains_fit(pose, scan, ("wall",), guess_fit=0.98)  # no clear gain
+    assert manager.counts["fit_losses"] == 1 and manager.counts["fixes_by_fit"] == 1
+
+    cov = np.diag([0.01, 0.01, 0.001])
+    for k in range(5):
+        manager.tracking_step(float(k), "accepted", cov, guess_fit=0.8)
+    for k in range(10):  # the guess keeps the scan on the walls: not lost
+        manager.tracking_step(5.0 + k, "ambiguous", cov, guess_fit=0.75)
+    assert manager.state is State.TRACKING
+    for k in range(3):  # it no longer does: three failures and the manager gives up tracking
+        manager.tracking_step(15.0 + k, "ambiguous", cov, guess_fit=0.5)
+    assert manager.state is State.COLLECTING
+
+
 def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     """Put down in the south room that repeats 7 m further east (same door, same walls in view),
     the views tie between the two rooms; after a window of scans that fit both equally well (and
