@@ -41,8 +41,9 @@ from houghloc import (
     observe_lines,
 )
 from houghloc.geometry import compose, relative, transform_points, wrap_angle, wrap_scalar
-from houghloc.global_match import wall_distance
+from houghloc.global_match import Neighbourhood, wall_distance
 from houghloc.matching import gate_threshold
+from houghloc.refine import Lines
 
 
 class State(StrEnum):
@@ -122,6 +123,20 @@ class AmbiguityConfig(BaseModel):
     kidnap_prior_odds: float = Field(
         10.0, gt=1.0, description="the nearest tied pose is taken when the prior makes it this "
         "many times as likely as every rival: exp((d₂² − d₁²) / 2σ²)")
+    # When tracking fails and the prediction no longer fits the scan (guess fit below
+    # hold_fit_ratio of the recent ones), the scan's own lines are matched to the map's within a
+    # neighbourhood of the dead-reckoned pose before the filter is given up: a wheel slip or a
+    # motion the odometry did not report (driving backwards) leaves the robot near it, where the
+    # rest of the building cannot compete.
+    local_search_xy: float | None = Field(
+        None, gt=0.0, description="m; radius of the local re-search (None: no local search)")
+    local_search_theta_deg: float = Field(20.0, gt=0.0, le=180.0)
+    local_fit_gain: float = Field(
+        0.1, ge=0.0, le=1.0, description="the pose found must put this much more of the scan's "
+        "points on walls than the guess ...")
+    local_min_fit: float = Field(
+        0.9, ge=0.0, le=1.0, description="... and at least this times the recent accepted "
+        "scans' fraction")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
 
 
@@ -168,6 +183,7 @@ class AmbiguityManager:
     _ties_slid: bool = False  # the followed ties were found by sliding along a corridor
     _recent_fit: deque = field(default_factory=deque)  # fractions on walls of used fixes
     _guess_fits: deque = field(default_factory=deque)  # … and of the guesses they corrected
+    _fix_fits: deque = field(default_factory=deque)  # fixes that passed fix_fits_map
     logger: object | None = None
 
     def __post_init__(self) -> None:
@@ -182,7 +198,7 @@ class AmbiguityManager:
         """Do the fit checks need the fraction of each scan's points on walls at the guess?"""
         c = self.config
         return c.max_fit_loss is not None or c.min_fit_gain is not None or \
-            c.hold_fit_ratio is not None
+            c.hold_fit_ratio is not None or c.local_search_xy is not None
 
     def tracking_step(self, t: float, status: str, cov: NDArray, pose: NDArray | None = None,
                       odom: NDArray | None = None, spacing: float | None = None,
@@ -197,7 +213,9 @@ class AmbiguityManager:
             self._prior = (np.array(pose, float), np.array(cov, float), np.array(odom, float))
             if status == "accepted":
                 self._last_trusted = (np.array(pose, float), np.array(odom, float))
-        if status == "accepted":
+        if status == "re-searched":
+            self._without_fix = 0
+        elif status == "accepted":
             self._without_fix = 0
             if guess_fit is not None:
                 self._guess_fits.append(guess_fit)
@@ -214,6 +232,62 @@ class AmbiguityManager:
         if sigma > self.config.max_position_sigma_fraction * spacing:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
                                           f"{spacing:.2f} m between parallel lines in view")
+
+    def wants_local_search(self, guess_fit: float | None) -> bool:
+        """Is a local re-search on, and does the prediction fit the scan worse than usual?"""
+        return (self.config.local_search_xy is not None and guess_fit is not None
+                and self.state is State.TRACKING and len(self._guess_fits) >= 5
+                and not self._guess_holds(guess_fit))
+
+    def local_search(self, t: float, guess: NDArray, points: NDArray, lines: Lines | None,
+                     kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig) -> Decision:
+        """Match one scan's ``lines`` to the map near ``guess`` (``local_search_xy``,
+        ``local_search_theta_deg``); the pose found re-initialises the filter when it clearly
+        fits the scan better than the guess and about as well as tracking did, and no other pose
+        in the neighbourhood scores as well (a corridor leaves the position along it open)."""
+        if lines is None or len(lines) < 2 or lines.members.shape[0] != len(points):
+            return Decision()
+        near = Neighbourhood(np.asarray(guess, float), self.config.local_search_xy,
+                             math.radians(self.config.local_search_theta_deg))
+        result = global_match(lines, points, self.map, self.config.global_match, kinds, near)
+        self.counts["local_searches"] += 1
+        if not self._fix_fits:
+            return Decision(result=result)
+        # Candidates: the matcher's poses (clustered by 5°, so each is polished by tracking from
+        # it) and the guess turned and moved along its heading step by step (a slip in a turn,
+        # an unreported reversal), each corrected by tracking from there.
+        sweep = _sweep(np.asarray(guess, float), self.config.local_search_xy,
+                       math.radians(self.config.local_search_theta_deg))
+        raw = self.fit_fractions(sweep, points, kinds)  # polish the promising ones only
+        starts = [np.asarray(h.pose, float) for h in result.hypotheses[:3]]
+        starts += list(sweep[np.argsort(-raw, kind="stable")[:6]])
+        prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+        found = []
+        for start in starts:
+            fix = localize_scan(points, self.map, start, hough, pose_cov=prior)
+            if fix.ok:
+                found.append((self.fit_fraction(fix.pose, points, kinds), fix.pose, fix.cov))
+        if not found:
+            return Decision(result=result)
+        found.sort(key=lambda f: -f[0])
+        fit, pose, cov = found[0]
+        typical = statistics.median(self._fix_fits)
+        rivals = [f for f in found[1:] if f[0] > fit - self.config.decisive_margin
+                  and not _same_pose(f[1], pose)]
+        if (fit < guess_fit + self.config.local_fit_gain
+                or fit < self.config.local_min_fit * typical or rivals):
+            return Decision(result=result)
+        self.counts["local_fixes"] += 1
+        shift = pose - np.asarray(guess, float)
+        if self.logger is not None:
+            self.logger.log_state(t, self.state.value, (
+                f"local re-search: moved {math.hypot(shift[0], shift[1]):.2f} m, "
+                f"{math.degrees(wrap_scalar(shift[2])):.1f}°; {fit:.2f} of the points on walls "
+                f"(guess {guess_fit:.2f})"))
+        floor = np.diag([self.config.reinit_sigma_xy**2] * 2
+                        + [math.radians(self.config.reinit_sigma_theta_deg) ** 2])
+        cov = np.array(cov, dtype=float)
+        return Decision(np.asarray(pose, float), 0.5 * (cov + cov.T) + floor, result)
 
     def _guess_holds(self, guess_fit: float | None) -> bool:
         ratio = self.config.hold_fit_ratio
@@ -246,12 +320,15 @@ class AmbiguityManager:
         set, a fix whose fraction is below ``guess_fit`` by more than that is a misfit too: it
         moved the scan off walls that the guess had it on (a wrong correspondence)."""
         loss = self.config.max_fit_loss if guess_fit is not None else None
-        if (self.config.misfit_ratio <= 0.0 and loss is None) or len(points) == 0:
+        if (self.config.misfit_ratio <= 0.0 and not self.judges_by_fit) or len(points) == 0:
             return True
         fraction = self.fit_fraction(pose, points, kinds)
         if loss is not None and fraction < guess_fit - loss:
             self.counts["fit_losses"] += 1
             return False
+        self._fix_fits.append(fraction)
+        while len(self._fix_fits) > self.config.fit_window:
+            self._fix_fits.popleft()
         if self.config.misfit_ratio <= 0.0:
             return True
         recent = self._recent_fit
@@ -262,6 +339,16 @@ class AmbiguityManager:
         while len(recent) > self.config.fit_window:
             recent.popleft()
         return True
+
+    def fit_fractions(self, poses: NDArray, points: NDArray,
+                      kinds: tuple[str, ...] = ("wall",)) -> NDArray[np.float64]:
+        """:meth:`fit_fraction` at each of ``poses`` (P×3) at once."""
+        gm = self.config.global_match
+        walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
+        c, s = np.cos(poses[:, 2:3]), np.sin(poses[:, 2:3])
+        x = poses[:, :1] + c * points[:, 0] - s * points[:, 1]
+        y = poses[:, 1:2] + s * points[:, 0] + c * points[:, 1]
+        return (walls.lookup(x, y) <= gm.inlier_distance).mean(axis=1)
 
     def fit_fraction(self, pose: NDArray, points: NDArray,
                      kinds: tuple[str, ...] = ("wall",)) -> float:
@@ -547,6 +634,27 @@ class AmbiguityManager:
                 "counts": dict(self.counts),
                 "log": [{"t": round(tr.t, 3), "from": tr.old.value, "to": tr.new.value,
                          "reason": tr.reason} for tr in self.transitions[-50:]]}
+
+
+def _sweep(guess: NDArray, radius_xy: float, radius_theta: float,
+           step_xy: float = 0.25, step_theta: float = math.radians(2.0)) -> NDArray[np.float64]:
+    """The guess turned by every ``step_theta`` within ``radius_theta``, and moved along its
+    heading by every ``step_xy`` within ``radius_xy`` (forwards and backwards)."""
+    turns = np.arange(step_theta, radius_theta + 1e-9, step_theta)
+    turns = np.concatenate(([0.0], turns, -turns))
+    moves = np.arange(step_xy, radius_xy + 1e-9, step_xy)
+    moves = np.concatenate((moves, -moves))
+    turned = np.tile(guess, (len(turns), 1))
+    turned[:, 2] = wrap_angle(turned[:, 2] + turns)
+    moved = np.tile(guess, (len(moves), 1))
+    moved[:, :2] += moves[:, None] * np.array([math.cos(guess[2]), math.sin(guess[2])])
+    return np.concatenate((turned, moved))
+
+
+def _same_pose(a: NDArray, b: NDArray, xy: float = 0.3,
+               theta: float = math.radians(5.0)) -> bool:
+    return bool(math.hypot(a[0] - b[0], a[1] - b[1]) <= xy
+                and abs(wrap_scalar(a[2] - b[2])) <= theta)
 
 
 def visible_parallel_spacing(theta: NDArray, rho: NDArray,

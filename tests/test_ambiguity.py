@@ -197,6 +197,44 @@ def test_fit_judges_fixes_the_matcher_cannot(office):
     assert manager.state is State.COLLECTING
 
 
+@pytest.mark.parametrize("slip", [(0.0, 0.0, 12.0), (0.0, 0.0, -16.0), (0.29, 0.09, 14.0)])
+def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
+    """The odometry reports a turn of 12-16° that the robot did not make (a wheel slip in a turn
+    on the spot), with or without a short drive: far outside the filter's gates, so no fix
+    matches. The scan's lines matched near the dead-reckoned pose find the robot again on that
+    scan; without the local re-search tracking is given up."""
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+
+    def replay(local: bool) -> tuple[list[str], float]:
+        ambiguity = {"hold_fit_ratio": 0.9, "max_scans_without_fix": 5}
+        if local:
+            ambiguity["local_search_xy"] = 1.0
+        config = LocalizerConfig.from_dict({"sensors": {"laser": {"max_range": 10.0}},
+                                            "ambiguity": ambiguity})
+        truth = np.array([5.0, 6.0, 0.3])
+        loc = Localizer(office, config, initial_pose=truth)
+        rng = np.random.default_rng(1)
+        statuses = []
+        for k in range(14):
+            reported = truth + (np.array([slip[0], slip[1], math.radians(slip[2])])
+                                if k >= 8 else 0.0)
+            loc.on_odometry(0.2 * k, *reported)
+            scan = laser_scan(office, truth, rng, LaserConfig(max_range=10.0))
+            statuses.append(loc.on_scan(0.2 * k, scan.ranges, scan.angles).status)
+        error = loc.pose - truth
+        return statuses, max(math.hypot(error[0], error[1]),
+                             abs(math.degrees(math.remainder(error[2], 2 * math.pi))) / 100)
+
+    statuses, error = replay(local=True)
+    assert statuses[:8] == ["accepted"] * 8
+    assert statuses[8] == "re-searched" and statuses[9:] == ["accepted"] * 5
+    assert error < 0.05
+    statuses, error = replay(local=False)
+    assert "re-searched" not in statuses and "accepted" not in statuses[8:]
+    assert error > 0.1
+
+
 def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     """Put down in the south room that repeats 7 m further east (same door, same walls in view),
     the views tie between the two rooms; after a window of scans that fit both equally well (and
