@@ -249,7 +249,9 @@ class AmbiguityManager:
             return Decision()
         near = Neighbourhood(np.asarray(guess, float), self.config.local_search_xy,
                              math.radians(self.config.local_search_theta_deg))
-        result = global_match(lines, points, self.map, self.config.global_match, kinds, near)
+        # only the best three are polished below: refining more would be wasted
+        local = self.config.global_match.model_copy(update={"max_refined": 3})
+        result = global_match(lines, points, self.map, local, kinds, near)
         self.counts["local_searches"] += 1
         if not self._fix_fits:
             return Decision(result=result)

@@ -480,10 +480,22 @@ def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMa
             out[sl] = np.clip(1.0 - d * d, 0.0, None).mean(axis=1)
         return out
 
-    # the coarse grid: for each oriented map line, s over the map's extent along it
+    # the coarse grid: for each oriented map line, s over the map's extent along it (over the
+    # neighbourhood's only, and only the lines that put the robot inside it, when one is given)
     u_all = np.stack((-np.sin(beta), np.cos(beta)), -1)
     s_lo, s_hi = (corners @ u_all.T).min(axis=0), (corners @ u_all.T).max(axis=0)
-    counts = np.ceil((s_hi - s_lo) / config.slide_step).astype(np.intp) + 1
+    if near is not None:
+        n_all = np.stack((np.cos(beta), np.sin(beta)), -1)
+        across = np.abs(n_all @ near.pose[:2] - (r - lines.rho[strong]))
+        turn = np.abs(wrap_angle(beta - lines.theta[strong] - near.pose[2]))
+        keep = (across <= near.radius_xy) & (turn <= near.radius_theta)
+        if not keep.any():
+            return GlobalResult(reason="sliding: no map line near the neighbourhood")
+        beta, r, u_all = beta[keep], r[keep], u_all[keep]
+        centre = u_all @ near.pose[:2]
+        s_lo = np.maximum(s_lo[keep], centre - near.radius_xy)
+        s_hi = np.minimum(s_hi[keep], centre + near.radius_xy)
+    counts = np.maximum(np.ceil((s_hi - s_lo) / config.slide_step).astype(np.intp) + 1, 0)
     which = np.repeat(np.arange(len(beta)), counts)
     step_i = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     s = s_lo[which] + step_i * config.slide_step

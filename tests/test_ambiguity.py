@@ -395,6 +395,15 @@ def test_corridor_seen_along_its_length_is_placed_by_sliding(office):
                abs(math.remainder(h.pose[2] - true[2], 2 * math.pi))) for h in result.hypotheses]
     assert any(d < 0.05 and a < math.radians(1.0) for d, a in errors), errors
     assert result.ambiguous  # the copy 7 m along
+    # searched near a guess 0.6 m and 8° off, the copy is out of reach: no tie, and only the
+    # corridor's poses inside the neighbourhood are slid over
+    from houghloc.global_match import Neighbourhood
+
+    near = Neighbourhood(true + [0.6, 0.1, math.radians(8.0)], 1.0, math.radians(20.0))
+    local = global_match(lines, points, office, cfg, near=near)
+    assert local.best is not None and not local.ambiguous, local.reason
+    assert math.hypot(*(local.best.pose[:2] - true[:2])) < 0.05
+    assert local.n_candidates < result.n_candidates / 5
     no_slide = cfg.model_copy(update={"slide_along_parallel": False})
     off = global_match(lines, points, office, no_slide)
     assert not off.hypotheses and "non-parallel" in off.reason
