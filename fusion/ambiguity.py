@@ -233,11 +233,17 @@ class AmbiguityManager:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
                                           f"{spacing:.2f} m between parallel lines in view")
 
-    def wants_local_search(self, guess_fit: float | None) -> bool:
-        """Is a local re-search on, and does the prediction fit the scan worse than usual?"""
-        return (self.config.local_search_xy is not None and guess_fit is not None
-                and self.state is State.TRACKING and len(self._guess_fits) >= 5
-                and not self._guess_holds(guess_fit))
+    def wants_local_search(self, guess_fit: float | None, fix_fit: float | None = None) -> bool:
+        """Is a local re-search on, and does the scan fit worse than usual: at the guess when no
+        fix was used, at the fix (``fix_fit``) when one was (two lines matched to the wrong
+        walls after a slip can pass the gates and still leave the scan off the walls)?"""
+        if (self.config.local_search_xy is None or guess_fit is None
+                or self.state is not State.TRACKING or len(self._guess_fits) < 5):
+            return False
+        if fix_fit is None:
+            return not self._guess_holds(guess_fit)
+        ratio = self.config.hold_fit_ratio or 1.0
+        return fix_fit < ratio * statistics.median(self._fix_fits)
 
     def local_search(self, t: float, guess: NDArray, points: NDArray, lines: Lines | None,
                      kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig) -> Decision:

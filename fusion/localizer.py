@@ -138,13 +138,15 @@ class Localizer:
         guess_fit = (self.manager.fit_fraction(guess, points, kinds)
                      if self.manager.judges_by_fit else None)
         status, outcome = self._use_fix(t, fix, points, cfg, guess_fit)
-        if status != "accepted" and self.manager.wants_local_search(guess_fit):
+        fix_fit = (self.manager.fit_fraction(fix.pose, points, kinds)
+                   if status == "accepted" and guess_fit is not None else None)
+        if self.manager.wants_local_search(guess_fit, fix_fit):
             # tracking failed and the prediction no longer fits: the odometry slipped, or
             # reported a motion the robot did not make. Look for the pose near it first.
             t2 = perf_counter()
             self.stats.seconds["update"] += t2 - t1
-            decision = self.manager.local_search(t, guess, points, fix.lines, kinds, guess_fit,
-                                                 cfg.hough)
+            decision = self.manager.local_search(t, guess, points, fix.lines, kinds,
+                                                 max(guess_fit, fix_fit or 0.0), cfg.hough)
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)
             if decision.reset_pose is not None and self.tracker.reset(decision.reset_pose,

@@ -235,6 +235,26 @@ def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
     assert error > 0.1
 
 
+def test_local_search_is_wanted_when_the_scan_fits_worse_than_usual(office):
+    """At the guess when no fix was used; at the fix when one was: two lines matched to the
+    wrong walls after a slip pass the gates and still leave the scan off the walls."""
+    from fusion.ambiguity import AmbiguityConfig, AmbiguityManager
+
+    manager = AmbiguityManager(office, AmbiguityConfig(local_search_xy=1.0, hold_fit_ratio=0.9))
+    pose = np.array([5.0, 6.0, 0.0])
+    scan = np.column_stack((np.linspace(-4, 0, 60), np.full(60, 1.0)))  # all on the y = 7 wall
+    cov = np.diag([0.01, 0.01, 0.001])
+    assert not manager.wants_local_search(0.1)  # no recent fits to compare with yet
+    for k in range(5):
+        assert manager.fix_fits_map(pose, scan, guess_fit=0.9)
+        manager.tracking_step(float(k), "accepted", cov, guess_fit=0.9)
+    assert manager.wants_local_search(0.5) and not manager.wants_local_search(0.85)
+    assert manager.wants_local_search(0.95, fix_fit=0.6)
+    assert not manager.wants_local_search(0.5, fix_fit=0.95)
+    manager.config = manager.config.model_copy(update={"local_search_xy": None})
+    assert not manager.wants_local_search(0.1)
+
+
 def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     """Put down in the south room that repeats 7 m further east (same door, same walls in view),
     the views tie between the two rooms; after a window of scans that fit both equally well (and
