@@ -35,11 +35,13 @@ from houghloc import (
     GlobalMatchConfig,
     GlobalResult,
     HoughConfig,
+    ScanCorrection,
     SegmentMap,
     global_match,
     localize_scan,
     observe_lines,
 )
+from houghloc.displacement import UNOBSERVED_VARIANCE
 from houghloc.geometry import compose, relative, transform_points, wrap_angle, wrap_scalar
 from houghloc.global_match import Neighbourhood, wall_distance
 from houghloc.matching import gate_threshold
@@ -272,9 +274,10 @@ class AmbiguityManager:
         prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
         found = []
         for start in starts:
-            fix = localize_scan(points, self.map, start, hough, pose_cov=prior)
-            if fix.ok:
-                found.append((self.fit_fraction(fix.pose, points, kinds), fix.pose, fix.cov))
+            polished = _polished(localize_scan(points, self.map, start, hough, pose_cov=prior),
+                                 np.asarray(guess, float))
+            if polished is not None:
+                found.append((self.fit_fraction(polished[0], points, kinds), *polished))
         if not found:
             return Decision(result=result)
         found.sort(key=lambda f: -f[0])
@@ -642,6 +645,23 @@ class AmbiguityManager:
                 "counts": dict(self.counts),
                 "log": [{"t": round(tr.t, 3), "from": tr.old.value, "to": tr.new.value,
                          "reason": tr.reason} for tr in self.transitions[-50:]]}
+
+
+def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = 0.3
+              ) -> tuple[NDArray, NDArray] | None:
+    """A local re-search candidate from a fix tracked from it: a full fix as it is; one that
+    observes the heading and the position across the walls in view only (a corridor, or one
+    wall of a cluttered room) keeps the guess's position along them, ``sigma_along`` uncertain
+    (the fix cannot say where along the corridor the start was, so every start along it gives
+    the same candidate and none of them is a rival). None when ambiguous or without heading."""
+    if fix.ambiguous or fix.rank < 2:
+        return None
+    if fix.rank == 3:
+        return fix.pose, fix.cov
+    v = fix.unobservable  # 3×1, in x, y
+    along = v @ v.T
+    pose = fix.pose - along @ (fix.pose - guess)
+    return pose, fix.cov + (sigma_along**2 - UNOBSERVED_VARIANCE) * along
 
 
 def _sweep(guess: NDArray, radius_xy: float, radius_theta: float,

@@ -255,6 +255,32 @@ def test_local_search_is_wanted_when_the_scan_fits_worse_than_usual(office):
     assert not manager.wants_local_search(0.1)
 
 
+def test_local_search_candidate_in_a_corridor_keeps_the_guess_along_it(office):
+    """Tracked from a start moved along a corridor (only its two walls in view), a fix observes
+    the heading and the position across it: the candidate takes those and keeps the guess's
+    position along the corridor, with a finite uncertainty there, so starts along the corridor
+    do not become rivals of each other. An ambiguous or empty fix is no candidate."""
+    from fusion.ambiguity import _polished
+    from houghloc import HoughConfig
+
+    true = np.array([5.5, 6.2, 0.0])
+    along = np.arange(-4.0, 4.0, 0.03)
+    points = np.concatenate([np.column_stack((along, np.full_like(along, y - true[1])))
+                             for y in (5.0, 7.0)])
+    guess = true + np.array([0.3, 0.06, math.radians(3.0)])
+    prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+    for start_x in (0.0, 0.5, -0.5):
+        start = guess + np.array([start_x, 0.0, 0.0])
+        fix = localize_scan(points, office, start, HoughConfig(), pose_cov=prior)
+        assert fix.rank == 2 and not fix.ambiguous, fix.reason
+        pose, cov = _polished(fix, guess)
+        assert pose[0] == pytest.approx(guess[0], abs=1e-6)
+        assert abs(pose[1] - true[1]) < 0.02 and abs(pose[2] - true[2]) < math.radians(0.5)
+        assert cov[0, 0] == pytest.approx(0.09, rel=0.01) and np.linalg.eigvalsh(cov).max() < 1
+    empty = localize_scan(points[:5], office, guess, HoughConfig(), pose_cov=prior)
+    assert _polished(empty, guess) is None
+
+
 def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     """Put down in the south room that repeats 7 m further east (same door, same walls in view),
     the views tie between the two rooms; after a window of scans that fit both equally well (and
