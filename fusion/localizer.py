@@ -33,7 +33,8 @@ class Estimate:
     t: float
     pose: NDArray[np.float64]
     cov: NDArray[np.float64]
-    status: str  # accepted | rejected | ambiguous | no-fix | misfit | dropped | invalid
+    # accepted | rejected | ambiguous | no-fix | misfit | re-searched | dropped | invalid
+    status: str
     correction: ScanCorrection | None = None
     outcome: UpdateOutcome | None = None
 
@@ -133,27 +134,55 @@ class Localizer:
         fix = localize_scan(points, self.map, guess, cfg.hough, pose_cov=guess_cov)
         t1 = perf_counter()
         self.stats.seconds["hough"] += t1 - t0
-        if fix.ambiguous:
-            estimate = self._finish(t, "ambiguous", fix, None, sensor, points)
-        elif fix.rank == 0 or _matched_lines(fix) < cfg.min_fix_lines:
-            estimate = self._finish(t, "no-fix", fix, None, sensor, points)
-        elif not self.manager.fix_fits_map(fix.pose, points, cfg.hough.reference_kinds):
-            # the scan lies off the map's walls at the fix: the robot is elsewhere (a kidnap),
-            # however small the innovation of the one or two lines it matched
-            estimate = self._finish(t, "misfit", fix, None, sensor, points)
+        kinds = cfg.hough.reference_kinds
+        guess_fit = (self.manager.fit_fraction(guess, points, kinds)
+                     if self.manager.judges_by_fit else None)
+        status, outcome = self._use_fix(t, fix, points, cfg, guess_fit)
+        fix_fit = (self.manager.fit_fraction(fix.pose, points, kinds)
+                   if status == "accepted" and guess_fit is not None else None)
+        if self.manager.wants_local_search(guess_fit, fix_fit):
+            # tracking failed and the prediction no longer fits: the odometry slipped, or
+            # reported a motion the robot did not make. Look for the pose near it first.
+            t2 = perf_counter()
+            self.stats.seconds["update"] += t2 - t1
+            decision = self.manager.local_search(t, guess, points, fix.lines, kinds,
+                                                 max(guess_fit, fix_fit or 0.0), cfg.hough)
+            self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
+                                           + perf_counter() - t2)
+            if decision.reset_pose is not None and self.tracker.reset(decision.reset_pose,
+                                                                      decision.reset_cov):
+                status, outcome = "re-searched", None
         else:
-            newest = self.tracker.time
-            if newest is not None and t < newest:
-                self.stats.late += 1
-            outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
             self.stats.seconds["update"] += perf_counter() - t1
-            self.stats.partial_rank += fix.rank < 3
-            estimate = self._finish(t, outcome.status, fix, outcome, sensor, points)
+        estimate = self._finish(t, status, fix, outcome, sensor, points)
         refs = fix.references
         spacing = visible_parallel_spacing(refs.theta, refs.rho) if refs is not None else None
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
-                                   self.tracker.odometry_at(t), spacing)
+                                   self.tracker.odometry_at(t), spacing, guess_fit)
         return estimate
+
+    def _use_fix(self, t: float, fix: ScanCorrection, points: NDArray, cfg: SensorConfig,
+                 guess_fit: float | None) -> tuple[str, UpdateOutcome | None]:
+        """Update the filter with a tracking fix when it can be trusted; the status and the
+        filter's outcome (None when the fix was not offered to it)."""
+        kinds = cfg.hough.reference_kinds
+        vouched = not fix.ambiguous and fix.rank > 0 and _matched_lines(fix) >= cfg.min_fix_lines
+        # a fix the matcher cannot vouch for is used when the scan itself does: clearly more of
+        # its points on walls than at the guess (the odometry slipped in a turn)
+        by_fit = (not vouched and fix.rank > 0
+                  and self.manager.fix_gains_fit(fix.pose, points, kinds, guess_fit))
+        if not (vouched or by_fit):
+            return ("ambiguous" if fix.ambiguous else "no-fix"), None
+        if vouched and not self.manager.fix_fits_map(fix.pose, points, kinds, guess_fit):
+            # the scan lies off the map's walls at the fix: the robot is elsewhere (a kidnap),
+            # or the lines were matched to the wrong walls, however small the innovation
+            return "misfit", None
+        newest = self.tracker.time
+        if newest is not None and t < newest:
+            self.stats.late += 1
+        outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
+        self.stats.partial_rank += fix.rank < 3
+        return outcome.status, outcome
 
     def on_landmark(self, t: float, label: str, bearing: float) -> None:
         """A recognised landmark (e.g. a goal by its colour) at a bearing: while the map's

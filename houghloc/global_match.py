@@ -195,6 +195,20 @@ class GlobalResult:
 _DEFAULT_CONFIG = GlobalMatchConfig()
 
 
+@dataclass(frozen=True)
+class Neighbourhood:
+    """Poses within ``radius_xy`` (m) and ``radius_theta`` (rad) of ``pose``."""
+
+    pose: NDArray[np.float64]
+    radius_xy: float
+    radius_theta: float
+
+    def contains(self, poses: NDArray) -> NDArray[np.bool_]:
+        d = poses[:, :2] - self.pose[:2]
+        return ((np.einsum("ij,ij->i", d, d) <= self.radius_xy**2)
+                & (np.abs(wrap_angle(poses[:, 2] - self.pose[2])) <= self.radius_theta))
+
+
 # ---------------------------------------------------------------------------- per-map caches
 @dataclass(frozen=True)
 class AngleIndex:
@@ -333,12 +347,15 @@ def global_match(
     map: SegmentMap,
     config: GlobalMatchConfig = _DEFAULT_CONFIG,
     kinds: tuple[str, ...] = ("wall",),
+    near: Neighbourhood | None = None,
 ) -> GlobalResult:
     """Match the set of observed ``lines`` (robot frame, from ``points``) against the map's lines.
 
     ``points`` (N×2, robot frame) are the accumulated points the lines were extracted from (e.g. by
     :func:`houghloc.localize.observe_lines`). Returns every distinct hypothesis, best first; bad or
-    structureless input gives an empty result with a reason, never an exception.
+    structureless input gives an empty result with a reason, never an exception. With ``near``
+    only poses inside that neighbourhood are hypothesised: a local re-search around a
+    dead-reckoned pose, where the rest of the building cannot compete.
     """
     kinds = tuple(kinds)
     pts = _as_points(points)
@@ -358,17 +375,17 @@ def global_match(
         pts = pts[finite]
         lines = dataclasses.replace(lines, members=lines.members[finite])
 
-    result = _match_pairs(lines, pts, map, config, kinds)
+    result = _match_pairs(lines, pts, map, config, kinds, near)
     if result.hypotheses or not config.slide_along_parallel:
         return result
-    slid = _match_sliding(lines, pts, map, config, kinds)
+    slid = _match_sliding(lines, pts, map, config, kinds, near)
     if slid.hypotheses:
         return slid
     return dataclasses.replace(result, reason=f"{result.reason}; {slid.reason}")
 
 
 def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatchConfig,
-                 kinds: tuple[str, ...]) -> GlobalResult:
+                 kinds: tuple[str, ...], near: Neighbourhood | None = None) -> GlobalResult:
     """Steps 1–5 of the module docstring: hypotheses from pairs of non-parallel lines."""
     pair_i, pair_k = observed_pairs(lines, config)
     if len(pair_i) == 0:
@@ -380,9 +397,12 @@ def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
         return GlobalResult(reason="the map has no two non-parallel lines")
     poses = pair_hypotheses(lines, pair_i, pair_k, index, config)
     poses = poses[_inside_map(poses, map, kinds, config.bbox_margin)]
+    if near is not None:
+        poses = poses[near.contains(poses)]
     n_candidates = len(poses)
     if n_candidates == 0:
-        return GlobalResult(reason="no line pair gives a pose inside the map")
+        where = "the neighbourhood" if near is not None else "the map"
+        return GlobalResult(reason=f"no line pair gives a pose inside {where}")
 
     cells, votes = vote_cells(poses, config)
     walls = wall_distance(map, kinds, config.dt_cell)
@@ -410,7 +430,7 @@ def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
 
 
 def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatchConfig,
-                   kinds: tuple[str, ...]) -> GlobalResult:
+                   kinds: tuple[str, ...], near: Neighbourhood | None = None) -> GlobalResult:
     """Hypotheses when no pair of lines fixes the pose: a corridor seen along its length.
 
     The strongest observed line, put on an oriented map line (β, r), fixes the heading
@@ -460,15 +480,29 @@ def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMa
             out[sl] = np.clip(1.0 - d * d, 0.0, None).mean(axis=1)
         return out
 
-    # the coarse grid: for each oriented map line, s over the map's extent along it
+    # the coarse grid: for each oriented map line, s over the map's extent along it (over the
+    # neighbourhood's only, and only the lines that put the robot inside it, when one is given)
     u_all = np.stack((-np.sin(beta), np.cos(beta)), -1)
     s_lo, s_hi = (corners @ u_all.T).min(axis=0), (corners @ u_all.T).max(axis=0)
-    counts = np.ceil((s_hi - s_lo) / config.slide_step).astype(np.intp) + 1
+    if near is not None:
+        n_all = np.stack((np.cos(beta), np.sin(beta)), -1)
+        across = np.abs(n_all @ near.pose[:2] - (r - lines.rho[strong]))
+        turn = np.abs(wrap_angle(beta - lines.theta[strong] - near.pose[2]))
+        keep = (across <= near.radius_xy) & (turn <= near.radius_theta)
+        if not keep.any():
+            return GlobalResult(reason="sliding: no map line near the neighbourhood")
+        beta, r, u_all = beta[keep], r[keep], u_all[keep]
+        centre = u_all @ near.pose[:2]
+        s_lo = np.maximum(s_lo[keep], centre - near.radius_xy)
+        s_hi = np.minimum(s_hi[keep], centre + near.radius_xy)
+    counts = np.maximum(np.ceil((s_hi - s_lo) / config.slide_step).astype(np.intp) + 1, 0)
     which = np.repeat(np.arange(len(beta)), counts)
     step_i = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
     s = s_lo[which] + step_i * config.slide_step
     coarse = poses_at(beta[which], r[which] - lines.rho[strong], s)
     inside = _inside_map(coarse, map, kinds, config.bbox_margin)
+    if near is not None:
+        inside &= near.contains(coarse)
     coarse, which = coarse[inside], which[inside]
     if len(coarse) == 0:
         return GlobalResult(reason="sliding: no pose inside the map")

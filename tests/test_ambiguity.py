@@ -164,6 +164,123 @@ def test_misfit_is_relative_to_recent_fixes(office):
     assert manager.counts["misfits"] == 1
 
 
+def test_fit_judges_fixes_the_matcher_cannot(office):
+    """With the fit rules on: a fix that moves the scan off walls the guess had it on is a misfit
+    (however well it passed the gates), one the matcher could not vouch for is used when it puts
+    clearly more points on walls than the guess, and a scan whose guess still fits as well as the
+    accepted ones did does not count as a failure."""
+    from fusion.ambiguity import AmbiguityConfig, AmbiguityManager
+
+    config = AmbiguityConfig(max_fit_loss=0.1, min_fit_gain=0.03, hold_fit_ratio=0.9,
+                             misfit_ratio=0.0, max_scans_without_fix=3)
+    manager = AmbiguityManager(office, config)
+    pose = np.array([5.0, 6.0, 0.0])
+    scan = np.column_stack((np.linspace(-4, 0, 60), np.full(60, 1.0)))  # the y = 7 wall
+    on_wall = manager.fit_fraction(pose, scan)
+    off_wall = pose + [0.0, 0.3, 0.0]
+    assert on_wall == pytest.approx(1.0) and manager.fit_fraction(off_wall, scan) == 0.0
+    assert manager.fix_fits_map(pose, scan, guess_fit=on_wall)
+    assert manager.fix_fits_map(off_wall, scan, guess_fit=on_wall) is False
+    assert manager.fix_fits_map(off_wall, scan, guess_fit=0.0)  # nothing lost: not judged
+    assert manager.fix_gains_fit(pose, scan, ("wall",), guess_fit=0.0)
+    assert not manager.fix_gains_fit(pose, scan, ("wall",), guess_fit=0.98)  # no clear gain
+    assert manager.counts["fit_losses"] == 1 and manager.counts["fixes_by_fit"] == 1
+
+    cov = np.diag([0.01, 0.01, 0.001])
+    for k in range(5):
+        manager.tracking_step(float(k), "accepted", cov, guess_fit=0.8)
+    for k in range(10):  # the guess keeps the scan on the walls: not lost
+        manager.tracking_step(5.0 + k, "ambiguous", cov, guess_fit=0.75)
+    assert manager.state is State.TRACKING
+    for k in range(3):  # it no longer does: three failures and the manager gives up tracking
+        manager.tracking_step(15.0 + k, "ambiguous", cov, guess_fit=0.5)
+    assert manager.state is State.COLLECTING
+
+
+@pytest.mark.parametrize("slip", [(0.0, 0.0, 12.0), (0.0, 0.0, -16.0), (0.29, 0.09, 14.0)])
+def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
+    """The odometry reports a turn of 12-16° that the robot did not make (a wheel slip in a turn
+    on the spot), with or without a short drive: far outside the filter's gates, so no fix
+    matches. The scan's lines matched near the dead-reckoned pose find the robot again on that
+    scan; without the local re-search tracking is given up."""
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+
+    def replay(local: bool) -> tuple[list[str], float]:
+        ambiguity = {"hold_fit_ratio": 0.9, "max_scans_without_fix": 5}
+        if local:
+            ambiguity["local_search_xy"] = 1.0
+        config = LocalizerConfig.from_dict({"sensors": {"laser": {"max_range": 10.0}},
+                                            "ambiguity": ambiguity})
+        truth = np.array([5.0, 6.0, 0.3])
+        loc = Localizer(office, config, initial_pose=truth)
+        rng = np.random.default_rng(1)
+        statuses = []
+        for k in range(14):
+            reported = truth + (np.array([slip[0], slip[1], math.radians(slip[2])])
+                                if k >= 8 else 0.0)
+            loc.on_odometry(0.2 * k, *reported)
+            scan = laser_scan(office, truth, rng, LaserConfig(max_range=10.0))
+            statuses.append(loc.on_scan(0.2 * k, scan.ranges, scan.angles).status)
+        error = loc.pose - truth
+        return statuses, max(math.hypot(error[0], error[1]),
+                             abs(math.degrees(math.remainder(error[2], 2 * math.pi))) / 100)
+
+    statuses, error = replay(local=True)
+    assert statuses[:8] == ["accepted"] * 8
+    assert statuses[8] == "re-searched" and statuses[9:] == ["accepted"] * 5
+    assert error < 0.05
+    statuses, error = replay(local=False)
+    assert "re-searched" not in statuses and "accepted" not in statuses[8:]
+    assert error > 0.1
+
+
+def test_local_search_is_wanted_when_the_scan_fits_worse_than_usual(office):
+    """At the guess when no fix was used; at the fix when one was: two lines matched to the
+    wrong walls after a slip pass the gates and still leave the scan off the walls."""
+    from fusion.ambiguity import AmbiguityConfig, AmbiguityManager
+
+    manager = AmbiguityManager(office, AmbiguityConfig(local_search_xy=1.0, hold_fit_ratio=0.9))
+    pose = np.array([5.0, 6.0, 0.0])
+    scan = np.column_stack((np.linspace(-4, 0, 60), np.full(60, 1.0)))  # all on the y = 7 wall
+    cov = np.diag([0.01, 0.01, 0.001])
+    assert not manager.wants_local_search(0.1)  # no recent fits to compare with yet
+    for k in range(5):
+        assert manager.fix_fits_map(pose, scan, guess_fit=0.9)
+        manager.tracking_step(float(k), "accepted", cov, guess_fit=0.9)
+    assert manager.wants_local_search(0.5) and not manager.wants_local_search(0.85)
+    assert manager.wants_local_search(0.95, fix_fit=0.6)
+    assert not manager.wants_local_search(0.5, fix_fit=0.95)
+    manager.config = manager.config.model_copy(update={"local_search_xy": None})
+    assert not manager.wants_local_search(0.1)
+
+
+def test_local_search_candidate_in_a_corridor_keeps_the_guess_along_it(office):
+    """Tracked from a start moved along a corridor (only its two walls in view), a fix observes
+    the heading and the position across it: the candidate takes those and keeps the guess's
+    position along the corridor, with a finite uncertainty there, so starts along the corridor
+    do not become rivals of each other. An ambiguous or empty fix is no candidate."""
+    from fusion.ambiguity import _polished
+    from houghloc import HoughConfig
+
+    true = np.array([5.5, 6.2, 0.0])
+    along = np.arange(-4.0, 4.0, 0.03)
+    points = np.concatenate([np.column_stack((along, np.full_like(along, y - true[1])))
+                             for y in (5.0, 7.0)])
+    guess = true + np.array([0.3, 0.06, math.radians(3.0)])
+    prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+    for start_x in (0.0, 0.5, -0.5):
+        start = guess + np.array([start_x, 0.0, 0.0])
+        fix = localize_scan(points, office, start, HoughConfig(), pose_cov=prior)
+        assert fix.rank == 2 and not fix.ambiguous, fix.reason
+        pose, cov = _polished(fix, guess)
+        assert pose[0] == pytest.approx(guess[0], abs=1e-6)
+        assert abs(pose[1] - true[1]) < 0.02 and abs(pose[2] - true[2]) < math.radians(0.5)
+        assert cov[0, 0] == pytest.approx(0.09, rel=0.01) and np.linalg.eigvalsh(cov).max() < 1
+    empty = localize_scan(points[:5], office, guess, HoughConfig(), pose_cov=prior)
+    assert _polished(empty, guess) is None
+
+
 def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
     """Put down in the south room that repeats 7 m further east (same door, same walls in view),
     the views tie between the two rooms; after a window of scans that fit both equally well (and
@@ -324,6 +441,15 @@ def test_corridor_seen_along_its_length_is_placed_by_sliding(office):
                abs(math.remainder(h.pose[2] - true[2], 2 * math.pi))) for h in result.hypotheses]
     assert any(d < 0.05 and a < math.radians(1.0) for d, a in errors), errors
     assert result.ambiguous  # the copy 7 m along
+    # searched near a guess 0.6 m and 8° off, the copy is out of reach: no tie, and only the
+    # corridor's poses inside the neighbourhood are slid over
+    from houghloc.global_match import Neighbourhood
+
+    near = Neighbourhood(true + [0.6, 0.1, math.radians(8.0)], 1.0, math.radians(20.0))
+    local = global_match(lines, points, office, cfg, near=near)
+    assert local.best is not None and not local.ambiguous, local.reason
+    assert math.hypot(*(local.best.pose[:2] - true[:2])) < 0.05
+    assert local.n_candidates < result.n_candidates / 5
     no_slide = cfg.model_copy(update={"slide_along_parallel": False})
     off = global_match(lines, points, office, no_slide)
     assert not off.hypotheses and "non-parallel" in off.reason

@@ -11,6 +11,7 @@ from houghloc.geometry import relative, transform_points, wrap_angle
 from houghloc.global_match import (
     GlobalMatchConfig,
     GlobalResult,
+    Neighbourhood,
     angle_index,
     global_match,
     seen_directly,
@@ -140,6 +141,23 @@ def test_symmetric_field_reports_both_mirror_poses(robocup: SegmentMap) -> None:
         assert found and found_mirror
         assert abs(found[0].score - found_mirror[0].score) <= GlobalMatchConfig().tie_margin
         assert "keep collecting" in result.reason
+
+
+def test_neighbourhood_keeps_only_the_poses_near_it(robocup: SegmentMap) -> None:
+    """A local re-search: of the two mirror poses, only the one inside the neighbourhood is
+    hypothesised, so it is no longer a tie; a neighbourhood away from both finds nothing."""
+    rng = np.random.default_rng(3)
+    truth = np.array([1.4, -1.15, -2.88])
+    points = accumulated_views(robocup, truth, rng)
+    _, _, lines = observe_lines(points, HOUGH)
+    guess = truth + np.array([0.4, -0.3, np.radians(12.0)])
+    near = Neighbourhood(guess, 1.0, np.radians(20.0))
+    result = global_match(lines, points, robocup, GlobalMatchConfig(), near=near)
+    assert result.best is not None and close(result.best.pose, truth)
+    assert not result.ambiguous
+    assert all(np.hypot(*(h.pose[:2] - guess[:2])) < 1.3 for h in result.hypotheses)
+    away = Neighbourhood(np.array([0.0, 2.5, 0.0]), 0.3, np.radians(5.0))
+    assert global_match(lines, points, robocup, GlobalMatchConfig(), near=away).best is None
 
 
 # ---------------------------------------------------------------------------- not enough

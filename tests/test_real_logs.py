@@ -41,15 +41,16 @@ def test_intel_rows_are_fed_in_order_with_their_own_stamps_kept() -> None:
 
 
 def test_intel_first_600_scans_track_the_reference() -> None:
-    # measured: ATE 5.8 cm RMSE, 13.5 cm max over 28 reference poses, relations 2.9 cm (47), 530
-    # of 600 fixes accepted (64 from a single line are not used), never out of tracking
+    # measured: ATE 5.7 cm RMSE, 12.5 cm max over 28 reference poses, relations 2.9 cm (47), 494
+    # of 600 fixes accepted (59 from a single line are not used, 41 that would move the scan
+    # off the walls are refused), never out of tracking
     result = score(run(_need("intel"), limit=600))
     h = result["houghloc"]
     assert h["matched"] >= 20
     assert h["lost"] == 0.0
     assert h["ate_rmse_m"] < 0.07 and h["ate_max_m"] < 0.17
     assert h["relations"]["count"] >= 40 and h["relations"]["translation_mean_m"] < 0.04
-    assert result["statuses"].get("accepted", 0) >= 0.85 * result["scans"]
+    assert result["statuses"].get("accepted", 0) >= 0.8 * result["scans"]
     assert "collecting" not in result["statuses"] and "lost" not in result["statuses"]
 
 
@@ -75,3 +76,14 @@ def test_aces_first_120_scans_stay_tracking() -> None:
     assert h["ate_rmse_m"] < 0.14 and h["ate_max_m"] < 0.5
     assert "collecting" not in result["statuses"] and "lost" not in result["statuses"]
     assert odom["ate_rmse_m"] > 5 * h["ate_rmse_m"]
+
+
+@pytest.mark.slow
+def test_intel_whole_log_never_lost() -> None:
+    # measured: ATE 4.6 cm RMSE, 12.5 cm max over 345 reference poses, none lost (before the fit
+    # rules: 5.2 cm, 22.8 cm, 2 poses 5.5-8° off after the odometry slipped in turns on the spot)
+    result = score(run(_need("intel")))
+    h = result["houghloc"]
+    assert h["matched"] >= 340
+    assert h["lost"] == 0.0
+    assert h["ate_rmse_m"] <= 0.05 and h["ate_max_m"] < 0.2
