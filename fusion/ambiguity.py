@@ -44,6 +44,7 @@ from houghloc import (
 from houghloc.displacement import UNOBSERVED_VARIANCE
 from houghloc.geometry import compose, relative, transform_points, wrap_angle, wrap_scalar
 from houghloc.global_match import Neighbourhood, wall_distance
+from houghloc.localize import clean_points
 from houghloc.matching import gate_threshold
 from houghloc.refine import Lines
 
@@ -272,10 +273,11 @@ class AmbiguityManager:
         starts = [np.asarray(h.pose, float) for h in result.hypotheses[:3]]
         starts += list(sweep[np.argsort(-raw, kind="stable")[:6]])
         prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+        observed = observe_lines(clean_points(points)[0], hough)  # one scan, every start
         found = []
         for start in starts:
-            polished = _polished(localize_scan(points, self.map, start, hough, pose_cov=prior),
-                                 np.asarray(guess, float))
+            polished = _polished(localize_scan(points, self.map, start, hough, pose_cov=prior,
+                                               observed=observed), np.asarray(guess, float))
             if polished is not None:
                 found.append((self.fit_fraction(polished[0], points, kinds), *polished))
         if not found:
@@ -552,9 +554,10 @@ class AmbiguityManager:
         that leads all others by ``tie_lead`` over a full window is the pose; one that trails the
         best by twice that is dropped."""
         prior = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
+        observed = observe_lines(clean_points(points)[0], hough)  # one scan, every tied pose
         moved = []
         for pose, fit in zip(self.carried_hypotheses(odom), self._hyp_fit, strict=True):
-            fix = localize_scan(points, self.map, pose, hough, pose_cov=prior)
+            fix = localize_scan(points, self.map, pose, hough, pose_cov=prior, observed=observed)
             if fix.ok:
                 pose = fix.pose
             fit.append(self.fit_fraction(pose, points, kinds))

@@ -109,11 +109,14 @@ def localize_scan(
     guess: ArrayLike,
     config: HoughConfig = _DEFAULT_CONFIG,
     pose_cov: ArrayLike | None = None,
+    observed: tuple[HoughGrid, NDArray[np.int64], Lines] | None = None,
 ) -> ScanCorrection:
     """Correct ``guess`` (x, y, θ) with the robot-frame points of one scan (DESIGN §3, §6).
 
     ``pose_cov`` is the guess's covariance (e.g. the filter's); it sets the matching gates.
     Without it the guess is assumed good to ``guess_sigma_xy`` and ``guess_sigma_theta_deg``.
+    ``observed``: :func:`observe_lines` of these points with this ``config``, when the same scan
+    is matched from several guesses (the lines do not depend on the guess).
     Bad input never raises on content: empty, non-finite or structureless scans give an empty
     result with a reason. A wrongly shaped array or a non-finite guess raises ``ValueError``.
     """
@@ -126,7 +129,7 @@ def localize_scan(
     if len(points) < config.peak_min_votes:
         return _empty(guess, f"too few points: {len(points)}{dropped}", n_points=len(points))
 
-    grid, acc, lines = observe_lines(points, config)
+    grid, acc, lines = observed if observed is not None else observe_lines(points, config)
     stages = {"n_points": len(points), "grid": grid, "accumulator": acc, "lines": lines}
     if len(lines) == 0:
         return _empty(guess, f"no line in the scan{dropped}", **stages)
