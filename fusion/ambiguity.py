@@ -46,7 +46,6 @@ from houghloc.geometry import compose, relative, transform_points, wrap_angle, w
 from houghloc.global_match import Neighbourhood, wall_distance
 from houghloc.localize import clean_points
 from houghloc.matching import gate_threshold
-from houghloc.refine import Lines
 
 
 class State(StrEnum):
@@ -197,6 +196,11 @@ class AmbiguityManager:
         self._go(t, State.LOST, reason)
 
     @property
+    def judges_fixes(self) -> bool:
+        """Does :meth:`fix_fits_map` look at the scan at all?"""
+        return self.config.misfit_ratio > 0.0 or self.judges_by_fit
+
+    @property
     def judges_by_fit(self) -> bool:
         """Do the fit checks need the fraction of each scan's points on walls at the guess?"""
         c = self.config
@@ -248,12 +252,14 @@ class AmbiguityManager:
         ratio = self.config.hold_fit_ratio or 1.0
         return fix_fit < ratio * statistics.median(self._fix_fits)
 
-    def local_search(self, t: float, guess: NDArray, points: NDArray, lines: Lines | None,
+    def local_search(self, t: float, guess: NDArray, points: NDArray, fix: ScanCorrection,
                      kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig) -> Decision:
-        """Match one scan's ``lines`` to the map near ``guess`` (``local_search_xy``,
-        ``local_search_theta_deg``); the pose found re-initialises the filter when it clearly
-        fits the scan better than the guess and about as well as tracking did, and no other pose
-        in the neighbourhood scores as well (a corridor leaves the position along it open)."""
+        """Match one scan's lines (those of the tracking ``fix`` from the same ``points``) to
+        the map near ``guess`` (``local_search_xy``, ``local_search_theta_deg``); the pose found
+        re-initialises the filter when it clearly fits the scan better than the guess and about
+        as well as tracking did, and no other pose in the neighbourhood scores as well (a
+        corridor leaves the position along it open)."""
+        lines = fix.lines
         if lines is None or len(lines) < 2 or lines.members.shape[0] != len(points):
             return Decision()
         near = Neighbourhood(np.asarray(guess, float), self.config.local_search_xy,
@@ -273,7 +279,7 @@ class AmbiguityManager:
         starts = [np.asarray(h.pose, float) for h in result.hypotheses[:3]]
         starts += list(sweep[np.argsort(-raw, kind="stable")[:6]])
         prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
-        observed = observe_lines(clean_points(points)[0], hough)  # one scan, every start
+        observed = (fix.grid, fix.accumulator, lines)  # one scan, matched from every start
         found = []
         for start in starts:
             polished = _polished(localize_scan(points, self.map, start, hough, pose_cov=prior,
@@ -297,10 +303,15 @@ class AmbiguityManager:
                 f"local re-search: moved {math.hypot(shift[0], shift[1]):.2f} m, "
                 f"{math.degrees(wrap_scalar(shift[2])):.1f}°; {fit:.2f} of the points on walls "
                 f"(guess {guess_fit:.2f})"))
-        floor = np.diag([self.config.reinit_sigma_xy**2] * 2
-                        + [math.radians(self.config.reinit_sigma_theta_deg) ** 2])
         cov = np.array(cov, dtype=float)
-        return Decision(np.asarray(pose, float), 0.5 * (cov + cov.T) + floor, result)
+        return Decision(np.asarray(pose, float), 0.5 * (cov + cov.T) + self._reinit_floor,
+                        result)
+
+    @property
+    def _reinit_floor(self) -> NDArray[np.float64]:
+        """The least covariance the filter is re-initialised with (``reinit_sigma_*``)."""
+        return np.diag([self.config.reinit_sigma_xy**2] * 2
+                       + [math.radians(self.config.reinit_sigma_theta_deg) ** 2])
 
     def _guess_holds(self, guess_fit: float | None) -> bool:
         ratio = self.config.hold_fit_ratio
@@ -309,19 +320,22 @@ class AmbiguityManager:
         return guess_fit >= ratio * statistics.median(self._guess_fits)
 
     def fix_gains_fit(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...],
-                      guess_fit: float | None) -> bool:
+                      guess_fit: float | None, fraction: float | None = None) -> bool:
         """Does a fix that the matcher could not vouch for (one line, or lines that disagree) put
-        ``min_fit_gain`` more of the scan's points on walls than the guess (``guess_fit``)?"""
+        ``min_fit_gain`` more of the scan's points on walls than the guess (``guess_fit``)?
+        ``fraction``: the fix's own fraction on walls, if the caller has it."""
         gain = self.config.min_fit_gain
         if gain is None or guess_fit is None or len(points) == 0:
             return False
-        if self.fit_fraction(pose, points, kinds) < guess_fit + gain:
+        if fraction is None:
+            fraction = self.fit_fraction(pose, points, kinds)
+        if fraction < guess_fit + gain:
             return False
         self.counts["fixes_by_fit"] += 1
         return True
 
     def fix_fits_map(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",),
-                     guess_fit: float | None = None) -> bool:
+                     guess_fit: float | None = None, fraction: float | None = None) -> bool:
         """Does a tracking fix put the scan on the map's walls about as well as recent fixes did,
         and about as well as the guess it corrects (``guess_fit``, its fraction on walls)?
 
@@ -331,11 +345,13 @@ class AmbiguityManager:
         filter thinks, e.g. kidnapped). Relative, so that clutter and unmapped furniture, which
         lower every fix's fraction alike, do not make good fixes misfits. With ``max_fit_loss``
         set, a fix whose fraction is below ``guess_fit`` by more than that is a misfit too: it
-        moved the scan off walls that the guess had it on (a wrong correspondence)."""
+        moved the scan off walls that the guess had it on (a wrong correspondence).
+        ``fraction``: the fix's own fraction on walls, if the caller has it."""
         loss = self.config.max_fit_loss if guess_fit is not None else None
-        if (self.config.misfit_ratio <= 0.0 and not self.judges_by_fit) or len(points) == 0:
+        if not self.judges_fixes or len(points) == 0:
             return True
-        fraction = self.fit_fraction(pose, points, kinds)
+        if fraction is None:
+            fraction = self.fit_fraction(pose, points, kinds)
         if loss is not None and fraction < guess_fit - loss:
             self.counts["fit_losses"] += 1
             return False
@@ -369,10 +385,7 @@ class AmbiguityManager:
         ``pose``."""
         if len(points) == 0:
             return 0.0
-        gm = self.config.global_match
-        walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
-        world = transform_points(np.asarray(pose, float), points)
-        return float((walls.lookup(world[:, 0], world[:, 1]) <= gm.inlier_distance).mean())
+        return float(self.fit_fractions(np.asarray(pose, float).reshape(1, 3), points, kinds)[0])
 
     # ------------------------------------------------------------------ global mode
     def collecting_step(self, t: float, odom: NDArray, points: NDArray,
@@ -506,9 +519,7 @@ class AmbiguityManager:
         self._failures = 0
         self.hypotheses = []
         cov = np.array(best.cov, dtype=float)
-        floor = np.diag([self.config.reinit_sigma_xy**2] * 2
-                        + [math.radians(self.config.reinit_sigma_theta_deg) ** 2])
-        cov = 0.5 * (cov + cov.T) + floor
+        cov = 0.5 * (cov + cov.T) + self._reinit_floor
         self._views.clear()
         self._without_fix = 0
         self._log_hypotheses(t, [best])
@@ -598,7 +609,7 @@ class AmbiguityManager:
         else:
             self._go(t, State.TRACKING, f"tie broken: {means[best]:.2f} of the points on walls "
                                         f"at one pose, {rival:.2f} at the next best")
-        return Decision(pose, np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2]))
+        return Decision(pose, self._reinit_floor)
 
     def _leads_every_scan(self, best: int) -> bool:
         """Does tied pose ``best`` fit better than every other on each scan of the window, by

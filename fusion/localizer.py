@@ -137,15 +137,19 @@ class Localizer:
         kinds = cfg.hough.reference_kinds
         guess_fit = (self.manager.fit_fraction(guess, points, kinds)
                      if self.manager.judges_by_fit else None)
-        status, outcome = self._use_fix(t, fix, points, cfg, guess_fit)
+        # the fix's own fraction on walls, once, for every check that wants it
         fix_fit = (self.manager.fit_fraction(fix.pose, points, kinds)
-                   if status == "accepted" and guess_fit is not None else None)
+                   if fix.rank > 0 and (self.manager.judges_fixes or guess_fit is not None)
+                   else None)
+        status, outcome = self._use_fix(t, fix, points, cfg, guess_fit, fix_fit)
+        if status != "accepted":
+            fix_fit = None
         if self.manager.wants_local_search(guess_fit, fix_fit):
             # tracking failed and the prediction no longer fits: the odometry slipped, or
             # reported a motion the robot did not make. Look for the pose near it first.
             t2 = perf_counter()
             self.stats.seconds["update"] += t2 - t1
-            decision = self.manager.local_search(t, guess, points, fix.lines, kinds,
+            decision = self.manager.local_search(t, guess, points, fix, kinds,
                                                  max(guess_fit, fix_fit or 0.0), cfg.hough)
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)
@@ -162,18 +166,21 @@ class Localizer:
         return estimate
 
     def _use_fix(self, t: float, fix: ScanCorrection, points: NDArray, cfg: SensorConfig,
-                 guess_fit: float | None) -> tuple[str, UpdateOutcome | None]:
+                 guess_fit: float | None, fix_fit: float | None
+                 ) -> tuple[str, UpdateOutcome | None]:
         """Update the filter with a tracking fix when it can be trusted; the status and the
-        filter's outcome (None when the fix was not offered to it)."""
+        filter's outcome (None when the fix was not offered to it). ``guess_fit``/``fix_fit``:
+        the fractions of the scan's points on walls at the guess and at the fix."""
         kinds = cfg.hough.reference_kinds
         vouched = not fix.ambiguous and fix.rank > 0 and _matched_lines(fix) >= cfg.min_fix_lines
         # a fix the matcher cannot vouch for is used when the scan itself does: clearly more of
         # its points on walls than at the guess (the odometry slipped in a turn)
         by_fit = (not vouched and fix.rank > 0
-                  and self.manager.fix_gains_fit(fix.pose, points, kinds, guess_fit))
+                  and self.manager.fix_gains_fit(fix.pose, points, kinds, guess_fit, fix_fit))
         if not (vouched or by_fit):
             return ("ambiguous" if fix.ambiguous else "no-fix"), None
-        if vouched and not self.manager.fix_fits_map(fix.pose, points, kinds, guess_fit):
+        if vouched and not self.manager.fix_fits_map(fix.pose, points, kinds, guess_fit,
+                                                     fix_fit):
             # the scan lies off the map's walls at the fix: the robot is elsewhere (a kidnap),
             # or the lines were matched to the wrong walls, however small the innovation
             return "misfit", None
