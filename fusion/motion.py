@@ -77,30 +77,24 @@ class OdometryCalibration:
     def __init__(self, translation_scale: float = 1.0, rotation_scale: float = 1.0) -> None:
         self.translation_scale = translation_scale
         self.rotation_scale = rotation_scale
-        self._raw: tuple[float, float, float] | None = None
-        self._calibrated: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._raw: NDArray[np.float64] | None = None
+        self._calibrated = np.zeros(3)
 
     @property
     def identity(self) -> bool:
         return self.translation_scale == 1.0 and self.rotation_scale == 1.0
 
     def __call__(self, x: float, y: float, theta: float) -> tuple[float, float, float]:
-        """The calibrated odometry pose for a raw reading (the first reading is kept as is).
-        Plain floats: this runs once per odometry reading."""
-        if self._raw is None:
-            self._raw = self._calibrated = (float(x), float(y), float(theta))
-            return self._calibrated
-        px, py, pth = self._raw
-        c, s = math.cos(pth), math.sin(pth)
-        gx, gy = x - px, y - py
-        k = self.translation_scale
-        dx, dy = k * (c * gx + s * gy), k * (c * gy - s * gx)  # (⊖raw_prev ⊕ raw), scaled
-        dth = self.rotation_scale * wrap_scalar(theta - pth)
-        cx, cy, cth = self._calibrated
-        c, s = math.cos(cth), math.sin(cth)
-        self._raw = (float(x), float(y), float(theta))
-        self._calibrated = (cx + c * dx - s * dy, cy + s * dx + c * dy, wrap_scalar(cth + dth))
-        return self._calibrated
+        """The calibrated odometry pose for a raw reading (the first reading is kept as is)."""
+        raw = np.array((x, y, theta), dtype=float)
+        if self._raw is not None:
+            step = relative(self._raw, raw)  # ⊖raw_prev ⊕ raw, scaled below
+            step *= (self.translation_scale, self.translation_scale, self.rotation_scale)
+            self._calibrated = compose(self._calibrated, step)
+        else:
+            self._calibrated = raw
+        self._raw = raw
+        return tuple(self._calibrated.tolist())
 
 
 def increment(odom_prev: ArrayLike, odom_next: ArrayLike) -> NDArray[np.float64]:
@@ -141,7 +135,6 @@ def interpolate(a: ArrayLike, b: ArrayLike, s: float) -> NDArray[np.float64]:
             th,
         )
     return compose(a, step)
-
 
 
 class OdometryMotionModel:
