@@ -34,14 +34,6 @@ class Localized:
         return self.ate.heading_deg["rmse"]
 
     @property
-    def position_cm(self) -> float:
-        return 100.0 * self.position_rmse
-
-    @property
-    def heading_deg(self) -> float:
-        return self.heading_rmse_deg
-
-    @property
     def lost(self) -> int:
         return LostFraction().from_ate(self.ate).count
 

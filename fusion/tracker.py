@@ -234,7 +234,7 @@ class PoseTracker:
             self._nodes.append(n)
             prev = n
         self._tail = len(after)
-        self._refilter(lo_index + 1)
+        self._mark_stale(lo_index + 1)
 
     # ------------------------------------------------------------------------- measurements
     def apply(
@@ -273,7 +273,7 @@ class PoseTracker:
         if t == node.t:
             self._load(node)
             outcome = self._attach(node, meas)
-            self._refilter(j + 1)
+            self._mark_stale(j + 1)
             return outcome
         nxt = self._nodes[j + 1]
         odom, step, q = self._split(node, nxt, t)
@@ -286,7 +286,7 @@ class PoseTracker:
         self._nodes.insert(j + 1, inserted)
         if j >= len(self._nodes) - 2 - self._tail:  # it landed after the newest odometry
             self._tail += 1
-        self._refilter(j + 2)
+        self._mark_stale(j + 2)
         return outcome
 
     def _apply_now(self, t: float, meas: _Measurement) -> UpdateOutcome:
@@ -362,7 +362,7 @@ class PoseTracker:
             self._invalid("singular innovation covariance")
         return outcome
 
-    def _refilter(self, start: int) -> None:
+    def _mark_stale(self, start: int) -> None:
         """Mark every node from ``start`` on for recomputation: its stored step is predicted
         again and its measurements re-applied (uncounted: they were counted when they arrived)
         when its estimate is next needed."""
