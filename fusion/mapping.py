@@ -612,17 +612,6 @@ def _refine(candidates: _Lines, points: NDArray[np.float64], tree: cKDTree, tol:
     return _Lines(centroid[ok], direction[ok], s0[ok], s1[ok])
 
 
-@dataclass
-class _Group:
-    """A wall line being assembled from collinear detections."""
-
-    moments: NDArray[np.float64]  # (n, sx, sy, sxx, sxy, syy) of the member detections' ends
-    point: NDArray[np.float64]
-    direction: NDArray[np.float64]
-    s0: float
-    s1: float
-
-
 def _group_collinear(lines: _Lines, angle_tol: float, offset_tol: float,
                      door_gap: float) -> _Lines:
     """Greedy grouping, longest detection first: a detection joins the first group whose line it
