@@ -28,7 +28,7 @@ bench: setup
 	$(BIN)/python -m benchmarks.run_all
 
 lint: setup
-	$(BIN)/ruff check houghloc fusion tests benchmarks
+	$(BIN)/ruff check houghloc fusion tests benchmarks notebooks
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache
