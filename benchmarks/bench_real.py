@@ -232,7 +232,11 @@ def score(outcome: Outcome, max_dt: float = 0.006) -> dict:
                  "scans_per_second": outcome.scans_per_second, "statuses": outcome.stats}
     for key, traj, align in (("houghloc", outcome.est, Alignment.NONE),
                              ("odometry", outcome.odom, Alignment.SE2)):
-        ate = ATE(alignment=align, max_dt=max_dt).compute(traj, outcome.ref)
+        try:
+            ate = ATE(alignment=align, max_dt=max_dt).compute(traj, outcome.ref)
+        except ValueError as exc:  # a short slice may hold too few reference poses to align on
+            out[key] = {"note": str(exc)}
+            continue
         lost = LostFraction(max_dt=max_dt).from_ate(ate)
         out[key] = {"ate_rmse_m": ate.position["rmse"], "ate_max_m": ate.position["max"],
                     "heading_rmse_deg": ate.heading_deg["rmse"],
@@ -266,7 +270,7 @@ def print_table(rows: list[dict]) -> None:
             tr, rot = rel.get("translation_mean_m"), rel.get("rotation_mean_deg")
             rot = None if rot is None else math.radians(rot)
             label = {"odometry": "odom (SE2)", "reference": "GMapping"}.get(method, method)
-            lost = f"{m['lost'] * 100:.1f}%" if "lost" in m else "–"
+            lost = f"{m['lost'] * 100:.1f}%" if math.isfinite(m.get("lost", math.nan)) else "–"
             rot_s = f"{rot:.3f} rad" if rot is not None and math.isfinite(rot) else "–"
             if rel:
                 rot_s += f" ({rel.get('count')})"

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from fusion.config import LocalizerConfig
 from fusion.evaluation import ATE, ATEResult, LostFraction, Trajectory, nees
@@ -56,3 +56,26 @@ def localize_simulated(run: SimRun, config: LocalizerConfig,
     if not ate.association.matched == len(result.t) > 0:  # an unscored pose would hide errors
         raise ValueError(f"{len(result.t) - ate.association.matched} poses without ground truth")
     return Localized(run, result, loc, ate)
+
+
+class OutlierInjectingTracker(PoseTracker):
+    """A tracker that shifts a ``fraction`` of the fixes by ``shift`` metres in a random direction
+    (deterministic by ``seed``) and remembers the times of the shifted ones: gross outliers for
+    gating experiments (pass it to :func:`localize_simulated`)."""
+
+    def __init__(self, config: LocalizerConfig, initial_pose: ArrayLike, fraction: float,
+                 seed: int, shift: float = 1.0) -> None:
+        fc = config.filter
+        super().__init__(initial_pose, fc.initial_cov, fc.motion, fc.history_seconds,
+                         fc.gate_probability, fc.delayed_updates)
+        self.fraction, self.shift = fraction, shift
+        self.rng = np.random.default_rng(seed)
+        self.injected_times: list[float] = []
+
+    def apply(self, t: float, z: ArrayLike, r: ArrayLike, basis: ArrayLike | None = None):
+        if self.rng.random() < self.fraction:
+            direction = self.rng.uniform(-np.pi, np.pi)
+            z = np.asarray(z, dtype=float) + self.shift * np.array(
+                [np.cos(direction), np.sin(direction), 0.0])
+            self.injected_times.append(t)
+        return super().apply(t, z, r, basis)

@@ -41,18 +41,36 @@ class Estimate:
 
 @dataclass
 class LocalizerStats:
-    """Counts for ``metrics.json``: what became of every measurement."""
+    """Counts for ``metrics.json``: what became of every measurement.
+
+    ``statuses`` counts every status a scan ended with (:class:`Estimate`); the named counts
+    read it."""
 
     scans: int = 0
-    accepted: int = 0
-    rejected: int = 0
-    ambiguous: int = 0
-    no_fix: int = 0
     partial_rank: int = 0
-    dropped: int = 0
     late: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=lambda: {"hough": 0.0, "update": 0.0})
+
+    @property
+    def accepted(self) -> int:
+        return self.statuses.get("accepted", 0)
+
+    @property
+    def rejected(self) -> int:
+        return self.statuses.get("rejected", 0)
+
+    @property
+    def ambiguous(self) -> int:
+        return self.statuses.get("ambiguous", 0)
+
+    @property
+    def no_fix(self) -> int:
+        return self.statuses.get("no-fix", 0)
+
+    @property
+    def dropped(self) -> int:
+        return self.statuses.get("dropped", 0)
 
 
 class Localizer:
@@ -220,10 +238,6 @@ class Localizer:
     def _finish(self, t: float, status: str, fix: ScanCorrection | None,
                 outcome: UpdateOutcome | None, sensor: str, points: NDArray) -> Estimate:
         self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
-        counter = {"accepted": "accepted", "rejected": "rejected", "ambiguous": "ambiguous",
-                   "no-fix": "no_fix", "dropped": "dropped"}.get(status)
-        if counter:
-            setattr(self.stats, counter, getattr(self.stats, counter) + 1)
         at_t = self.tracker.pose_at(t)
         pose, cov = at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
         estimate = Estimate(t, pose, cov, status, fix, outcome)

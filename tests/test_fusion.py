@@ -17,16 +17,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from fusion.config import LocalizerConfig
 from fusion.evaluation import ATE, ATEResult, Trajectory, chi2_band
 from fusion.events import Odometry, Scan
-from fusion.experiment import localize_simulated
+from fusion.experiment import OutlierInjectingTracker, localize_simulated
 from fusion.localizer import Localizer
 from fusion.replay import replay
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
-from fusion.tracker import PoseTracker
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIGS = REPO / "configs"
@@ -179,29 +178,6 @@ def test_late_camera_frames_cost_nothing_with_the_history_five_minutes() -> None
 
 
 # ------------------------------------------------------------------------------- (5) gating
-class OutlierInjectingTracker(PoseTracker):
-    """A tracker that shifts a fraction of the pose fixes it is given by 1 m in a random
-    direction (a wrong correspondence the matcher did not notice), deterministically by seed,
-    and remembers the times of the shifted ones."""
-
-    def __init__(self, localizer_config: LocalizerConfig, initial_pose: ArrayLike,
-                 fraction: float, seed: int, shift: float = 1.0) -> None:
-        fc = localizer_config.filter
-        super().__init__(initial_pose, fc.initial_cov, fc.motion, fc.history_seconds,
-                         fc.gate_probability, fc.delayed_updates)
-        self.fraction, self.shift = fraction, shift
-        self.rng = np.random.default_rng(seed)
-        self.injected_times: list[float] = []
-
-    def apply(self, t: float, z: ArrayLike, r: ArrayLike, basis: ArrayLike | None = None):
-        if self.rng.random() < self.fraction:
-            direction = self.rng.uniform(-np.pi, np.pi)
-            z = np.asarray(z, dtype=float) + self.shift * np.array(
-                [np.cos(direction), np.sin(direction), 0.0])
-            self.injected_times.append(t)
-        return super().apply(t, z, r, basis)
-
-
 def rmse(values: NDArray[np.float64]) -> float:
     return float(np.sqrt(np.mean(values**2)))
 

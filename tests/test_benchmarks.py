@@ -1,0 +1,48 @@
+"""Every benchmark script runs end to end at a tiny size and prints its verdicts.
+
+The figures themselves are measured by running the scripts at full size (README); these tests
+only keep the scripts working as the code they measure changes (no timing is asserted).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks.bench_real import DATA
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _run(module: str, *args: str) -> str:
+    done = subprocess.run([sys.executable, "-m", f"benchmarks.{module}", *args], cwd=REPO,
+                          capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "Traceback" not in done.stderr
+    return done.stdout + done.stderr
+
+
+def test_bench_fusion_every_section() -> None:
+    out = _run("bench_fusion", "--duration", "10", "--seeds", "2", "--log-minutes", "0.1", "0.2")
+    for section in range(1, 7):
+        assert f"=== {section}." in out
+    assert "target ≥ 1000 scans/s" in out and "peak RSS growth" in out
+
+
+def test_bench_localize_and_global_and_rerun() -> None:
+    assert "cv2.HoughLinesPointSet" in _run("bench_localize", "--rounds", "1")
+    assert "a copy of the true pose reported" in _run("bench_global", "--rounds", "1")
+    assert "% of off" in _run("bench_rerun", "--duration", "5", "--rounds", "1")
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason=f"real logs not found at {DATA}")
+def test_bench_real_on_short_slices() -> None:
+    # 40 scans hold no Intel reference pose: the table says so instead of failing
+    out = _run("bench_real", "--scans", "40")
+    for name in ("intel", "fr079", "aces"):
+        assert f"{name}: 40 scans" in out
