@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.io.errors import LogError
+from fusion.io.textfile import read_numeric_table
 from houghloc.geometry import wrap_angle
 
 INTEL_TIME_OFFSET = 976052857.337284
@@ -35,27 +36,9 @@ def read_relations(path: str | Path, time_offset: float = 0.0) -> Relations:
     """Read a relations file; ``time_offset`` is subtracted from both times (for Intel use
     ``INTEL_TIME_OFFSET``). Comment lines start with ``#``. A malformed line raises ``LogError``
     with its line number (a reference must not be silently incomplete)."""
-    path = Path(path)
-    if not path.is_file():
-        raise LogError(path, "file not found")
-    rows: list[list[float]] = []
-    with path.open(encoding="utf-8", errors="replace") as f:
-        for number, line in enumerate(f, start=1):
-            fields = line.split()
-            if not fields or fields[0].startswith("#"):
-                continue
-            if len(fields) != 8:
-                raise LogError(path, f"line {number}: expected 8 fields, found {len(fields)}")
-            try:
-                values = [float(v) for v in fields]
-            except ValueError:
-                raise LogError(path, f"line {number}: non-numeric field") from None
-            if not np.isfinite(values).all():
-                raise LogError(path, f"line {number}: non-finite value")
-            rows.append(values)
-    if not rows:
-        raise LogError(path, "no relations")
-    data = np.array(rows)
+    data = read_numeric_table(path, 8)
+    if len(data) == 0:
+        raise LogError(Path(path), "no relations")
     # Subtract in float64 after parsing: absolute times ~1e9 keep ~1e-7 s resolution, enough.
     t1 = data[:, 0] - time_offset
     t2 = data[:, 1] - time_offset

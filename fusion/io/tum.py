@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import os
-from array import array
 from pathlib import Path
 from types import TracebackType
 from typing import Self, TextIO
@@ -17,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.io.errors import LogError
+from fusion.io.textfile import read_numeric_table
 from houghloc.geometry import wrap_angle
 
 
@@ -113,33 +113,11 @@ def read_tum(path: str | Path, limit: int | None = None
     The yaw is the heading of the quaternion's rotation (exact for rotations about z). Blank lines
     and ``#`` comments are skipped; any other malformed line raises ``LogError`` naming its line.
     ``limit``: stop after that many poses (the start pose of a long log without reading it all).
-    Values are collected in a flat array of doubles (8 bytes each, not a Python float object
-    per value), so an hour of poses costs a few MB, not tens.
     """
     path = Path(path)
-    if not path.is_file():
-        raise LogError(path, "file not found")
-    flat = array("d")
-    with path.open(encoding="utf-8", errors="replace") as f:
-        for number, line in enumerate(f, start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            fields = text.split()
-            if len(fields) != 8:
-                raise LogError(path, f"line {number}: expected 8 fields, found {len(fields)}")
-            try:
-                values = [float(v) for v in fields]
-            except ValueError:
-                raise LogError(path, f"line {number}: non-numeric field in {text[:60]!r}") from None
-            if not all(math.isfinite(v) for v in values):
-                raise LogError(path, f"line {number}: non-finite value")
-            flat.extend(values)
-            if limit is not None and len(flat) >= 8 * limit:
-                break
-    if not flat:
+    data = read_numeric_table(path, 8, limit)
+    if len(data) == 0:
         raise LogError(path, "no poses")
-    data = np.frombuffer(flat, dtype=np.float64).reshape(-1, 8)
     qx, qy, qz, qw = data[:, 4:8].T
     norm = np.sqrt(qx**2 + qy**2 + qz**2 + qw**2)
     if np.any(np.abs(norm - 1.0) > 1e-3):
