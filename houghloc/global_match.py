@@ -471,7 +471,7 @@ def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMa
         a point); otherwise the cell's value, less a cell (its quantisation is not evidence)."""
         out = np.empty(len(poses))
         for sl in _chunks(len(poses), len(sample)):
-            wx, wy = _to_world(poses[sl], sample[:, 0], sample[:, 1])
+            wx, wy = to_world(poses[sl], sample[:, 0], sample[:, 1])
             if smooth:
                 d = walls.lookup_smooth(wx, wy)
             else:
@@ -703,7 +703,7 @@ def _top(values: NDArray, m: int) -> NDArray[np.intp]:
 
 
 # ---------------------------------------------------------------------------- 3–4. scores
-def _to_world(poses: NDArray, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
+def to_world(poses: NDArray, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
     """Robot-frame coordinates (any shape S) at each pose: (H×S world x, H×S world y)."""
     c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
     shape = (len(poses),) + (1,) * np.ndim(x)
@@ -735,7 +735,7 @@ def cheap_scores(poses: NDArray, lines: Lines, walls: WallDistance,
     weight = lines.n / lines.n.sum()
     out = np.empty(len(poses))
     for sl in _chunks(len(poses), px.size):
-        wx, wy = _to_world(poses[sl], px, py)  # H×K×S
+        wx, wy = to_world(poses[sl], px, py)  # H×K×S
         on_wall = walls.lookup(wx, wy) <= config.inlier_distance
         explained = on_wall.mean(axis=2) >= config.min_line_coverage
         out[sl] = explained @ weight
@@ -766,7 +766,7 @@ def point_scores(poses: NDArray, points: NDArray, members: NDArray[np.bool_],
     inliers = np.empty(len(poses))
     explained = np.empty((len(poses), members.shape[1]), dtype=bool)
     for sl in _chunks(len(poses), len(points)):
-        wx, wy = _to_world(poses[sl], points[:, 0], points[:, 1])  # H×N
+        wx, wy = to_world(poses[sl], points[:, 0], points[:, 1])  # H×N
         on_wall = walls.lookup(wx, wy) <= config.inlier_distance
         if visible is not None:
             on_wall &= visible[sl]
@@ -852,7 +852,7 @@ def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[
     near = near[np.isin(map.kinds[near], kinds) & map.is_wall[near]]
     if len(near) == 0 or len(points) == 0:
         return np.ones(len(points), dtype=bool)
-    wx, wy = _to_world(pose[None, :], points[:, 0], points[:, 1])
+    wx, wy = to_world(pose[None, :], points[:, 0], points[:, 1])
     d = np.column_stack((wx[0] - pose[0], wy[0] - pose[1]))  # N×2
     w = map.starts[near] - pose[:2]  # S×2
     e = map.ends[near] - map.starts[near]
