@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion.events import Event, ReadStats
+from fusion.io.camera_points import read_camera_points
 from fusion.io.carmen import CarmenLog, FlaserSpacing, flaser_angles, read_carmen
 from fusion.io.errors import LogError
 from fusion.io.files import atomic_write_json, atomic_write_text
@@ -30,6 +31,7 @@ from fusion.io.tum import TrajectoryValueError, TumWriter, read_tum, write_tum
 
 __all__ = [
     "INTEL_TIME_OFFSET",
+    "SIM_CAMERA_NAME",
     "SIM_LOG_NAME",
     "CarmenLog",
     "EventSource",
@@ -45,6 +47,7 @@ __all__ = [
     "flaser_angles",
     "merge_by_time",
     "open_log",
+    "read_camera_points",
     "read_carmen",
     "read_intel_mat",
     "read_relations",
@@ -54,8 +57,9 @@ __all__ = [
 ]
 
 SIM_LOG_NAME = "log.carmen"
-SIM_CAMERA_NAME = "camera.points"
 """The CARMEN log inside a simulator output directory."""
+SIM_CAMERA_NAME = "camera.points"
+"""Its camera frames, if it has any (:mod:`fusion.io.camera_points`)."""
 
 ROSBAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
@@ -86,8 +90,6 @@ def open_log(
             carmen = read_carmen(path / SIM_LOG_NAME, **reader_options)
             streams = [iter(carmen), *(iter(source(path)) for source in extra_sources)]
             if (path / SIM_CAMERA_NAME).is_file():
-                from fusion.sim.files import read_camera_points  # the simulator imports fusion.io
-
                 streams.append(read_camera_points(path / SIM_CAMERA_NAME, carmen.stats))
             events = merge_by_time(streams) if len(streams) > 1 else streams[0]
             return events, carmen.stats

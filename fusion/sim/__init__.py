@@ -18,6 +18,7 @@ Labels of simulated points: map segment index ≥ 0, −1 no return, −2 moving
 −4 spurious/false.
 """
 
+from fusion.io.camera_points import read_camera_points
 from fusion.sim.camera import CameraFrame, camera_points
 from fusion.sim.config import (
     CameraConfig,
@@ -30,7 +31,7 @@ from fusion.sim.config import (
     RouteConfig,
     ScenarioConfig,
 )
-from fusion.sim.files import load_scenario, read_camera_points, write_run
+from fusion.sim.files import load_scenario, write_run
 from fusion.sim.landmarks import landmark_sightings
 from fusion.sim.laser import (
     CLUTTER,

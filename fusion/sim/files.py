@@ -1,4 +1,4 @@
-"""Writing a simulated run to disk, and reading its camera points back.
+"""Writing a simulated run to disk (:func:`fusion.io.open_log` reads it back).
 
 ``write_run(run, out_dir)`` writes, each file atomically (a temporary file, then ``os.replace``):
 
@@ -41,15 +41,13 @@ turn_axis ipc_timestamp ipc_hostname logger_timestamp
 from __future__ import annotations
 
 import math
-import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Literal
 
 import numpy as np
 import yaml
 
-from fusion.events import PointSet, ReadStats
 from fusion.io.files import atomic_file
 from fusion.io.tum import format_tum_line
 from fusion.sim.config import ScenarioConfig
@@ -185,43 +183,3 @@ def _write_points(run: SimRun, f: IO[str]) -> None:
         f.write(f"POINTS {t:.6f} {a:.6f} {len(pts)}{' ' if len(pts) else ''}{xy}\n")
         ls = " ".join(str(v) for v in lab.tolist())
         f.write(f"LABELS {t:.6f} {len(lab)}{' ' if len(lab) else ''}{ls}\n")
-
-
-def read_camera_points(path: str | Path, stats: ReadStats | None = None,
-                       sensor: str = "camera") -> Iterator[PointSet]:
-    """Yield the ``POINTS`` records of a ``camera.points`` file as :class:`PointSet` events
-    (with ``arrival`` and the line number). A bad record is skipped with a warning that names the
-    file and line (``warnings.warn``, and ``stats.warn`` if given); a missing file raises
-    ``FileNotFoundError``."""
-    path = Path(path)
-
-    def bad(lineno: int, why: str) -> None:
-        msg = f"{path}:{lineno}: skipped camera record: {why}"
-        warnings.warn(msg, stacklevel=3)
-        if stats is not None:
-            stats.warn(msg)
-
-    with open(path, encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            fields = line.split()
-            if not fields or fields[0].startswith("#") or fields[0] == "LABELS":
-                continue
-            if fields[0] != "POINTS":
-                bad(lineno, f"unknown record type {fields[0]!r}")
-                continue
-            try:
-                t, arrival = float(fields[1]), float(fields[2])
-                n = int(fields[3])
-                values = np.array(fields[4:], dtype=float)
-            except (IndexError, ValueError):
-                bad(lineno, "expected 'POINTS t_capture t_arrival n x1 y1 ...' with numbers")
-                continue
-            if n < 0 or len(values) != 2 * n:
-                bad(lineno, f"n = {n} but {len(values)} coordinates (expected {2 * max(n, 0)})")
-                continue
-            if not (math.isfinite(t) and math.isfinite(arrival) and np.isfinite(values).all()):
-                bad(lineno, "non-finite value")
-                continue
-            if stats is not None:
-                stats.records += 1
-            yield PointSet(t, values.reshape(n, 2), sensor=sensor, arrival=arrival, line=lineno)
