@@ -775,7 +775,9 @@ def point_scores(poses: NDArray, points: NDArray, members: NDArray[np.bool_],
         covered = (on_wall @ m) / np.maximum(n_k, 1.0)
         explained[sl] = (covered >= config.min_line_coverage) & (n_k > 0)
     w = config.line_weight
-    score = w * (explained @ weight) + (1.0 - w) * inliers
+    # float32 × float32 goes to BLAS; bool × float32 took NumPy's own buffered loop, which
+    # now and then raised a spurious 'invalid value' flag (the products are 0/1 × finite)
+    score = w * (explained.astype(np.float32) @ weight) + (1.0 - w) * inliers
     return PointScores(score, inliers, explained.sum(axis=1), explained)
 
 
