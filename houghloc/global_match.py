@@ -395,10 +395,10 @@ def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
     index = angle_index(map, kinds, config.min_pair_angle, pad)
     if len(index.delta) == 0:
         return GlobalResult(reason="the map has no two non-parallel lines")
-    poses = pair_hypotheses(lines, pair_i, pair_k, index, config)
-    poses = poses[_inside_map(poses, map, kinds, config.bbox_margin)]
+    poses = pair_hypotheses(lines, pair_i, pair_k, index, config, near)
     if near is not None:
         poses = poses[near.contains(poses)]
+    poses = poses[_inside_map(poses, map, kinds, config.bbox_margin)]
     n_candidates = len(poses)
     if n_candidates == 0:
         where = "the neighbourhood" if near is not None else "the map"
@@ -617,12 +617,15 @@ def observed_pairs(lines: Lines, config: GlobalMatchConfig
 
 
 def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
-                    index: AngleIndex, config: GlobalMatchConfig) -> NDArray[np.float64]:
+                    index: AngleIndex, config: GlobalMatchConfig,
+                    near: Neighbourhood | None = None) -> NDArray[np.float64]:
     """All poses (H×3) from observed pairs and the map pairs with the same angle between them.
 
     The window half-width is ``angle_tol_sigmas`` σ_δ + ``angle_tol_floor`` (capped), with
     σ_δ² = var θ_i + var θ_k from the lines' covariance. The ragged candidate ranges are expanded
-    without a Python loop (repeat + arange).
+    without a Python loop (repeat + arange). With ``near``, poses whose heading is outside it are
+    left out before their position is solved (a local search keeps a few percent of them); the
+    budget still counts every candidate, so the poses kept are the same as without it.
     """
     d_obs = np.mod(lines.theta[pair_k] - lines.theta[pair_i], TWO_PI)
     sigma = np.sqrt(lines.cov[pair_i, 0, 0] + lines.cov[pair_k, 0, 0])
@@ -636,8 +639,14 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
     i, k = pair_i[which], pair_k[which]
     # θ = β − θ_obs from either line; their circular mean
     th_a = index.beta_a[entry] - lines.theta[i]
+    if near is not None:  # θ is within half the angle window of θ_a: a first cut on θ_a alone
+        turned = np.abs(wrap_angle(th_a - near.pose[2])) <= near.radius_theta + tol.max()
+        entry, i, k, th_a = entry[turned], i[turned], k[turned], th_a[turned]
     th_b = index.beta_b[entry] - lines.theta[k]
     theta = wrap_angle(th_a + 0.5 * wrap_angle(th_b - th_a))
+    if near is not None:
+        turned = np.abs(wrap_angle(theta - near.pose[2])) <= near.radius_theta
+        entry, i, k, theta = entry[turned], i[turned], k[turned], theta[turned]
     rhs = np.stack((index.r_a[entry] - lines.rho[i], index.r_b[entry] - lines.rho[k]), -1)
     xy = np.einsum("hij,hj->hi", index.n_inv[entry], rhs)
     return np.column_stack((xy, theta))

@@ -146,7 +146,8 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
     # biases only the wall it is on, and twin peaks cannot share their points.
     if k:
         dist = np.abs(points @ np.array((cos_t, sin_t)) - rho) / band
-        label = np.where(dist.min(axis=1) <= 1.0, np.argmin(dist, axis=1), -1)
+        nearest = np.argmin(dist, axis=1)
+        label = np.where(dist[np.arange(len(points)), nearest] <= 1.0, nearest, -1)
         label = _split_pieces(points, label, cos_t, sin_t, config)
     else:
         label = np.full(len(points), -1, dtype=np.intp)
@@ -158,9 +159,13 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
     sigma = np.sqrt(var)
     cos_t, sin_t = np.cos(theta), np.sin(theta)
     s_bar = cos_t * c[1] - sin_t * c[0]  # centroid along t = (−sin θ, cos θ)
-    along = points @ np.array((-sin_t, cos_t))  # N×K
-    s0 = np.where(mask, along, np.inf).min(axis=0, initial=np.inf)
-    s1 = np.where(mask, along, -np.inf).max(axis=0, initial=-np.inf)
+    # extent of each line's points along it (±inf for a line left without points)
+    on_line = np.flatnonzero(label >= 0)
+    line_of = label[on_line]
+    along = (points @ np.array((-sin_t, cos_t)))[on_line, line_of]
+    s0, s1 = np.full(k, np.inf), np.full(k, -np.inf)
+    np.minimum.at(s0, line_of, along)
+    np.maximum.at(s1, line_of, along)
     ok = (n >= config.min_piece_points) & (sigma <= config.max_line_sigma) & (
         s1 - s0 >= config.min_line_length)
     var_eff = np.maximum(var, config.point_sigma_floor**2)
