@@ -117,7 +117,7 @@ def test_occluded_gap_is_bridged_but_a_seen_through_gap_is_not() -> None:
 
 
 def _lines(*segments: tuple[tuple[float, float], tuple[float, float]]):
-    from fusion.mapping import _lines_from_ends
+    from fusion.mapping.segments import _lines_from_ends
 
     a = np.array([s[0] for s in segments], dtype=float)
     b = np.array([s[1] for s in segments], dtype=float)
@@ -125,7 +125,7 @@ def _lines(*segments: tuple[tuple[float, float], tuple[float, float]]):
 
 
 def test_near_duplicate_lines_of_one_face_are_merged_onto_one_line() -> None:
-    from fusion.mapping import _merge_duplicates
+    from fusion.mapping.segments import _merge_duplicates
 
     tilt = math.tan(math.radians(2.0))
     lines = _lines(((0.0, 0.0), (6.0, 0.0)),             # a wall, seen from +y
