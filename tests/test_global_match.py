@@ -14,6 +14,8 @@ from houghloc.global_match import (
     Neighbourhood,
     angle_index,
     global_match,
+    observed_pairs,
+    pair_hypotheses,
     seen_directly,
     wall_distance,
 )
@@ -158,6 +160,29 @@ def test_neighbourhood_keeps_only_the_poses_near_it(robocup: SegmentMap) -> None
     assert all(np.hypot(*(h.pose[:2] - guess[:2])) < 1.3 for h in result.hypotheses)
     away = Neighbourhood(np.array([0.0, 2.5, 0.0]), 0.3, np.radians(5.0))
     assert global_match(lines, points, robocup, GlobalMatchConfig(), near=away).best is None
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_neighbourhood_cut_keeps_exactly_the_poses_inside_it(office_large: SegmentMap,
+                                                              seed: int) -> None:
+    """The heading cut made before positions are solved is only a shortcut: the poses are those
+    of the whole map's hypotheses that lie in the neighbourhood, in the same order."""
+    rng = np.random.default_rng(seed)
+    truth = free_pose(office_large, rng)
+    points = accumulated_views(office_large, truth, rng)
+    _, _, lines = observe_lines(points, HOUGH)
+    config = GlobalMatchConfig()
+    pair_i, pair_k = observed_pairs(lines, config)
+    index = angle_index(office_large, ("wall",), config.min_pair_angle,
+                        config.angle_tol_max + 1e-9)
+    everywhere = pair_hypotheses(lines, pair_i, pair_k, index, config)
+    # neighbourhoods whose heading edge passes through the hypotheses near the truth
+    for turn in np.radians([8.0, 19.0, 19.8, 20.0, 20.2, -19.9]):
+        near = Neighbourhood(truth + np.array([0.3, -0.2, turn]), 1.0, np.radians(20.0))
+        inside = everywhere[near.contains(everywhere)]
+        cut = pair_hypotheses(lines, pair_i, pair_k, index, config, near)
+        assert len(inside) < len(everywhere)
+        np.testing.assert_array_equal(cut[near.contains(cut)], inside)
 
 
 # ---------------------------------------------------------------------------- not enough
