@@ -10,17 +10,10 @@ from __future__ import annotations
 
 import argparse
 
-import cv2
 import numpy as np
 
-from benchmarks.common import MAPS, ray_scan, tiled_map, time_interleaved
+from benchmarks.common import MAPS, opencv_voting, ray_scan, tiled_map, time_interleaved
 from houghloc import HoughConfig, SegmentMap, localize_scan
-
-
-def opencv_voting(points: np.ndarray):
-    pts = points.astype(np.float32).reshape(-1, 1, 2)
-    return lambda: cv2.HoughLinesPointSet(pts, 32, 10, -20.0, 20.0, 0.01, 0.0, np.pi,
-                                          np.pi / 180)
 
 
 def main(argv: list[str] | None = None) -> dict:

@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from houghloc import SegmentMap
@@ -63,3 +64,29 @@ def tiled_map(base: SegmentMap, n_segments: int) -> SegmentMap:
     e = np.concatenate(ends)[:n_segments]
     kinds = list(np.tile(base.kinds, tiles)[:n_segments])
     return SegmentMap(s, e, kinds=kinds, name=f"{base.name}x{tiles}")
+
+
+def opencv_voting(points: np.ndarray) -> Callable[[], object]:
+    """OpenCV's Hough transform of ``points`` at 1° × 1 cm over ρ ∈ [−20, 20] m: the peer."""
+    pts = points.astype(np.float32).reshape(-1, 1, 2)
+    return lambda: cv2.HoughLinesPointSet(pts, 32, 10, -20.0, 20.0, 0.01, 0.0, np.pi,
+                                          np.pi / 180)
+
+
+def yardstick_seconds(calls: int = 200) -> float:
+    """Median seconds of the peer on a fixed 361-beam RoboCup scan: the machine's speed now.
+
+    A long replay cannot be interleaved call by call with a peer, so its time per scan is
+    divided by this, measured just before and after it: the ratio survives the drift of a shared
+    machine between runs, where scans per second do not.
+    """
+    field = SegmentMap.from_yaml(MAPS / "robocup.yaml")
+    peer = opencv_voting(ray_scan(field, np.array([0.5, -0.4, 0.3]), 361, seed=0))
+    for _ in range(50):  # the first calls of a fresh process run slow (caches, clock ramp-up)
+        peer()
+    samples = []
+    for _ in range(calls):
+        t0 = time.perf_counter()
+        peer()
+        samples.append(time.perf_counter() - t0)
+    return float(np.median(samples))
