@@ -56,11 +56,11 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from houghloc.config import HoughConfig
-from houghloc.displacement import estimate_displacement
+from houghloc.displacement import Displacement, estimate_displacement
 from houghloc.geometry import TWO_PI, wrap_angle
-from houghloc.matching import associate
+from houghloc.matching import Matches, associate
 from houghloc.refine import Lines
-from houghloc.segment_map import SegmentMap
+from houghloc.segment_map import References, SegmentMap
 
 
 class GlobalMatchConfig(BaseModel):
@@ -556,14 +556,11 @@ def _slid(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_s: 
     """A pose found by sliding, scored like a refined one. The lines matched there (all
     parallel: rank 2) refine the heading and the position across them; along them the pose
     stays where the points put it, with σ ``slide_sigma``."""
-    hc = config.hough
-    max_range = float(np.sqrt((pts**2).sum(axis=1).max())) + 0.5
-    prior = np.diag([config.refine_sigma_xy**2] * 2 + [config.refine_sigma_theta**2])
-    refs = map.references(pose, max_range, kinds, hc.visibility_rays)
-    matches = associate(lines, refs, pose, prior, hc)
-    if len(matches) < 2:
+    max_range = _reach(pts)
+    found = _matched_at(pose, lines, map, kinds, max_range, config)
+    if found is None or len(found[1]) < 2:
         return None
-    disp = estimate_displacement(matches, refs.beta[matches.ref], hc.max_observable_sigma)
+    refs, matches, disp = found
     beta = float(refs.beta[matches.ref[0]])
     n = np.array([math.cos(beta), math.sin(beta)])
     u = np.array([-n[1], n[0]])
@@ -576,12 +573,8 @@ def _slid(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_s: 
     var_n = min(var_n, config.refine_sigma_xy**2)
     cov[:2, :2] = var_n * np.outer(n, n) + config.slide_sigma**2 * np.outer(u, u)
     cov[2, 2] = min(float(disp.cov[2, 2]), config.refine_sigma_theta**2)
-    visible = (seen_directly(pose, pts_s, map, kinds, max_range, config.visibility_margin)[None]
-               if config.check_visibility else None)
-    s = point_scores(pose[None, :], pts_s, members_s, walls, config, visible)
-    pairs = np.column_stack((matches.line, refs.line[matches.ref])).astype(np.intp)
-    return Hypothesis(pose, cov, float(s.score[0]), int(s.n_explained[0]),
-                      float(s.inlier_fraction[0]), pairs, slid=True)
+    return _scored(pose, cov, refs, matches, pts_s, members_s, map, walls, kinds, max_range,
+                   config, slid=True)
 
 
 def _decide(hyps: list[Hypothesis], n_candidates: int, config: GlobalMatchConfig) -> GlobalResult:
@@ -818,35 +811,52 @@ def _refined(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_
     The hypothesis is treated as a guess with a tight prior (``refine_sigma_*``): the Hough-domain
     gates of :func:`associate` then only admit the lines that this pose explains.
     """
-    hc = config.hough
-    max_range = float(np.sqrt((pts**2).sum(axis=1).max())) + 0.5
-    prior = np.diag([config.refine_sigma_xy**2] * 2 + [config.refine_sigma_theta**2])
+    max_range = _reach(pts)
     pose = np.array([pose[0], pose[1], float(wrap_angle(pose[2]))])
-    disp, matches, refs = None, None, None
-    for _ in range(config.refine_iterations):
-        refs = map.references(pose, max_range, kinds, hc.visibility_rays)
-        matches = associate(lines, refs, pose, prior, hc)
-        if len(matches) == 0:
+    # refine_iterations corrections, then one more (cheap) solve at the last linearisation
+    # point, to which the covariance belongs
+    for step in range(config.refine_iterations + 1):
+        found = _matched_at(pose, lines, map, kinds, max_range, config)
+        if found is None or found[2].rank < 3:
             return None
-        disp = estimate_displacement(matches, refs.beta[matches.ref], hc.max_observable_sigma)
-        if disp.rank < 3:
-            return None
-        pose = pose + disp.delta
-        pose[2] = float(wrap_angle(pose[2]))
-    # the covariance belongs to the last linearisation point: one more (cheap) solve there
+        refs, matches, disp = found
+        if step < config.refine_iterations:
+            pose = pose + disp.delta
+            pose[2] = float(wrap_angle(pose[2]))
+    return _scored(pose, disp.cov, refs, matches, pts_s, members_s, map, walls, kinds, max_range,
+                   config)
+
+
+def _reach(pts: NDArray) -> float:
+    """The range within which map lines can explain the points (their farthest, plus a margin)."""
+    return float(np.sqrt((pts**2).sum(axis=1).max())) + 0.5
+
+
+def _matched_at(pose: NDArray, lines: Lines, map: SegmentMap, kinds: tuple[str, ...],
+                max_range: float, config: GlobalMatchConfig
+                ) -> tuple[References, Matches, Displacement] | None:
+    """The lines matched at a hypothesis treated as a guess with the tight prior
+    ``refine_sigma_*``, and the displacement they give; None when none matches."""
+    hc = config.hough
+    prior = np.diag([config.refine_sigma_xy**2] * 2 + [config.refine_sigma_theta**2])
     refs = map.references(pose, max_range, kinds, hc.visibility_rays)
     matches = associate(lines, refs, pose, prior, hc)
     if len(matches) == 0:
         return None
-    disp = estimate_displacement(matches, refs.beta[matches.ref], hc.max_observable_sigma)
-    if disp.rank < 3:
-        return None
+    return refs, matches, estimate_displacement(matches, refs.beta[matches.ref],
+                                                hc.max_observable_sigma)
+
+
+def _scored(pose: NDArray, cov: NDArray, refs: References, matches: Matches, pts_s: NDArray,
+            members_s: NDArray, map: SegmentMap, walls: WallDistance, kinds: tuple[str, ...],
+            max_range: float, config: GlobalMatchConfig, slid: bool = False) -> Hypothesis:
+    """A refined pose as a hypothesis: its score on the sampled points, and the line pairs."""
     visible = (seen_directly(pose, pts_s, map, kinds, max_range, config.visibility_margin)[None]
                if config.check_visibility else None)
     s = point_scores(pose[None, :], pts_s, members_s, walls, config, visible)
     pairs = np.column_stack((matches.line, refs.line[matches.ref])).astype(np.intp)
-    return Hypothesis(pose, disp.cov, float(s.score[0]), int(s.n_explained[0]),
-                      float(s.inlier_fraction[0]), pairs)
+    return Hypothesis(pose, cov, float(s.score[0]), int(s.n_explained[0]),
+                      float(s.inlier_fraction[0]), pairs, slid=slid)
 
 
 def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[str, ...],
