@@ -197,10 +197,13 @@ def check_gating(scenario: str, seed: int, duration: float) -> None:
     assert 0.9 * injected <= rejected_beyond_clean <= injected
     assert corrupted.localizer.stats.rejected == tracker.counts.rejected
     assert corrupted.lost == 0
-    # The gate keeps the outliers out of the estimate: elsewhere it is the clean run's.
+    # The gate keeps the outliers out of the estimate: elsewhere it is the clean run's, less
+    # the information of the fixes it refused. The filter averages fixes over several scans, so
+    # losing 5 % of them costs about √(1/0.95) − 1 ≈ 2.6 % everywhere (RoboCup, seed 2: 3.4 %);
+    # one leaked 1 m outlier would cost far more.
     shifted = np.isin(corrupted.result.t, tracker.injected_times)
     elsewhere = rmse(corrupted.ate.position_errors[~shifted])
-    assert elsewhere <= 1.02 * rmse(clean.ate.position_errors[~shifted])
+    assert elsewhere <= 1.05 * rmse(clean.ate.position_errors[~shifted])
     # At a rejected scan the pose is the odometry prediction since the previous scan, so the
     # heading pays a little there; it must stay within the scenario's target.
     assert corrupted.heading_rmse_deg <= LASER_TARGETS[scenario][1]
