@@ -13,12 +13,12 @@ import math
 from pathlib import Path
 from typing import Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from fusion.ambiguity import AmbiguityConfig
 from fusion.motion import OdometryMotionConfig
 from houghloc import HoughConfig
+from houghloc.yaml_io import read_yaml
 
 
 class ConfigError(ValueError):
@@ -81,13 +81,7 @@ class LocalizerConfig(_Strict):
         if path is None:
             return cls()
         path = Path(path)
-        try:
-            raw = yaml.safe_load(path.read_text())
-        except FileNotFoundError:
-            raise ConfigError(f"config {path}: file not found") from None
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-            raise ConfigError(f"config {path}: cannot read it ({exc})") from None
-        return cls.from_dict(raw or {}, source=str(path))
+        return cls.from_dict(read_yaml(path, ConfigError, "config") or {}, source=str(path))
 
     @classmethod
     def from_dict(cls, raw: object, source: str = "<dict>") -> LocalizerConfig:

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from scipy.spatial import cKDTree
 
 from houghloc.geometry import TWO_PI, ray_segment_distances
+from houghloc.yaml_io import read_yaml
 
 SegmentKind = Literal["wall", "line"]
 
@@ -130,14 +131,7 @@ class SegmentMap:
     def from_yaml(cls, path: str | Path) -> SegmentMap:
         """Load a map YAML (DESIGN §6); :class:`MapError` names the file, entry and problem."""
         path = Path(path)
-        try:
-            raw = yaml.safe_load(path.read_text())
-        except FileNotFoundError:
-            raise MapError(f"map {path}: file not found") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise MapError(f"map {path}: cannot read ({exc})") from None
-        except yaml.YAMLError as exc:
-            raise MapError(f"map {path}: not valid YAML ({exc})") from None
+        raw = read_yaml(path, MapError, "map")
         if raw is None:
             raise MapError(f"map {path}: the file is empty")
         if not isinstance(raw, dict):

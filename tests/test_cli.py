@@ -300,3 +300,24 @@ def test_demo_prints_the_accuracy_table(tmp_path: Path,
     assert len(trajectory) == metrics["scans"] == 151
     assert (out / "sim" / "log.carmen").is_file()
     assert not (out / "run.rrd").exists()
+
+
+@pytest.mark.parametrize(("content", "problem"), [
+    ("name: [unclosed\n", "not valid YAML"),
+    ("- a list\n", "expected a mapping"),
+    ("name: x\nduration: -5\n", "duration: Input should be greater than 0"),
+    (None, "file not found"),
+])
+def test_sim_names_the_scenario_file_and_its_problem(content: str | None, problem: str,
+                                                     tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    scenario = tmp_path / "scenario.yaml"
+    if content is not None:
+        scenario.write_text(content)
+
+    code = main(["sim", "--scenario", str(scenario), "--out", str(tmp_path / "out")])
+
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"scenario {scenario}: {problem}" in err and "Traceback" not in err
+    assert not (tmp_path / "out").exists()

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from numpy.typing import NDArray
 
-from fusion.config import LocalizerConfig
+from fusion.config import ConfigError, LocalizerConfig
 from fusion.evaluation import ATE, ATEResult, Trajectory, chi2_band
 from fusion.events import Odometry, Scan
 from fusion.experiment import OutlierInjectingTracker, localize_simulated
@@ -335,3 +335,18 @@ def test_the_hough_grid_stops_at_the_sensors_reach() -> None:
     }})
     assert config.sensors["near"].hough.rho_max == pytest.approx(4.0 + 0.5 + 0.1)
     assert config.sensors["short"].hough.rho_max == 8.0
+
+
+@pytest.mark.parametrize(("content", "problem"), [
+    ("filter: [unclosed\n", "not valid YAML"),
+    ("filter: {gate_probability: 2.0}\n", "filter.gate_probability"),
+    ("sensors: {laser: {hough: {no_such_setting: 1}}}\n", "no_such_setting"),
+    (None, "file not found"),
+])
+def test_localizer_config_errors_name_the_file_and_the_field(content: str | None, problem: str,
+                                                             tmp_path: Path) -> None:
+    path = tmp_path / "config.yaml"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(ConfigError, match=rf"config {path}.*{problem}"):
+        LocalizerConfig.from_yaml(path)

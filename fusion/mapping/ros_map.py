@@ -7,10 +7,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
 from fusion.mapping.grid import GridMapError, OccupancyGrid
+from houghloc.yaml_io import read_yaml
 
 
 def load_ros_map(yaml_path: str | Path) -> OccupancyGrid:
@@ -48,14 +48,7 @@ def _read_ros_yaml(path: Path) -> dict:
     def fail(field: str, problem: str) -> GridMapError:
         return GridMapError(f"ROS map {path}: {field!r} {problem}")
 
-    try:
-        raw = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise GridMapError(f"ROS map {path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise GridMapError(f"ROS map {path}: cannot read ({exc})") from None
-    except yaml.YAMLError as exc:
-        raise GridMapError(f"ROS map {path}: not valid YAML ({exc})") from None
+    raw = read_yaml(path, GridMapError, "ROS map")
     if not isinstance(raw, dict):
         raise GridMapError(f"ROS map {path}: expected a mapping with 'image', 'resolution', "
                            f"'origin', got {type(raw).__name__}")

@@ -222,15 +222,8 @@ def _group_collinear(lines: _Lines, angle_tol: float, offset_tol: float,
         a, b = starts[i], ends[i]
         d = lines.direction[i]
         if len(g_point):
-            normal = np.column_stack((-g_dir[:, 1], g_dir[:, 0]))
-            off_a = np.abs(np.einsum("ij,ij->i", a - g_point, normal))
-            off_b = np.abs(np.einsum("ij,ij->i", b - g_point, normal))
-            sa = np.einsum("ij,ij->i", a - g_point, g_dir)
-            sb = np.einsum("ij,ij->i", b - g_point, g_dir)
-            gap = np.maximum(np.minimum(sa, sb) - g_s[:, 1], g_s[:, 0] - np.maximum(sa, sb))
-            match = ((np.abs(g_dir @ d) >= cos_tol) & (off_a <= offset_tol)
-                     & (off_b <= offset_tol) & (gap <= door_gap))
-            hit = np.flatnonzero(match)
+            hit = np.flatnonzero(_on_group_line(a, b, d, g_point, g_dir, cos_tol, offset_tol)
+                                 & (_gap_to_extent(a, b, g_point, g_dir, g_s) <= door_gap))
         else:
             hit = np.empty(0, dtype=np.intp)
         weight = float(lines.length[i])
@@ -251,6 +244,28 @@ def _group_collinear(lines: _Lines, angle_tol: float, offset_tol: float,
             g_s = np.vstack((g_s, [-half, half]))
             g_mom = np.vstack((g_mom, mom))
     return _Lines(g_point, g_dir, g_s[:, 0], g_s[:, 1])
+
+
+def _on_group_line(a: NDArray[np.float64], b: NDArray[np.float64], d: NDArray[np.float64],
+                   point: NDArray[np.float64], direction: NDArray[np.float64], cos_tol: float,
+                   offset_tol: float) -> NDArray[np.bool_]:
+    """Per group (a line through ``point`` along ``direction``): does the segment a–b of
+    direction d lie on it, its direction within the angle whose cosine is ``cos_tol`` and both
+    its ends within ``offset_tol``?"""
+    normal = np.column_stack((-direction[:, 1], direction[:, 0]))
+    off_a = np.abs(np.einsum("ij,ij->i", a - point, normal))
+    off_b = np.abs(np.einsum("ij,ij->i", b - point, normal))
+    return (np.abs(direction @ d) >= cos_tol) & (off_a <= offset_tol) & (off_b <= offset_tol)
+
+
+def _gap_to_extent(a: NDArray[np.float64], b: NDArray[np.float64], point: NDArray[np.float64],
+                   direction: NDArray[np.float64], extent: NDArray[np.float64]
+                   ) -> NDArray[np.float64]:
+    """Per group: the gap along its line between the segment a–b and the group's extent [s0, s1]
+    (negative where they overlap)."""
+    sa = np.einsum("ij,ij->i", a - point, direction)
+    sb = np.einsum("ij,ij->i", b - point, direction)
+    return np.maximum(np.minimum(sa, sb) - extent[:, 1], extent[:, 0] - np.maximum(sa, sb))
 
 
 def _end_moments(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -408,15 +423,9 @@ def _merge_duplicates(segments: _Lines, facing: NDArray[np.float64], angle_tol: 
         a, b, d = starts[i], ends[i], segments.direction[i]
         hit = np.empty(0, dtype=np.intp)
         if len(c_point):
-            normal = np.column_stack((-c_dir[:, 1], c_dir[:, 0]))
-            off_a = np.abs(np.einsum("ij,ij->i", a - c_point, normal))
-            off_b = np.abs(np.einsum("ij,ij->i", b - c_point, normal))
-            sa = np.einsum("ij,ij->i", a - c_point, c_dir)
-            sb = np.einsum("ij,ij->i", b - c_point, c_dir)
-            gap = np.maximum(np.minimum(sa, sb) - c_s[:, 1], c_s[:, 0] - np.maximum(sa, sb))
-            match = ((np.abs(c_dir @ d) >= cos_tol) & (off_a <= offset_tol)
-                     & (off_b <= offset_tol) & (c_face @ facing[i] > 0) & (gap <= max_gap))
-            hit = np.flatnonzero(match)
+            hit = np.flatnonzero(_on_group_line(a, b, d, c_point, c_dir, cos_tol, offset_tol)
+                                 & (c_face @ facing[i] > 0)
+                                 & (_gap_to_extent(a, b, c_point, c_dir, c_s) <= max_gap))
         mom = float(segments.length[i]) * _end_moments(a, b)
         if len(hit):
             c = hit[0]

@@ -47,6 +47,7 @@ from typing import IO, Literal
 
 import numpy as np
 import yaml
+from pydantic import ValidationError
 
 from fusion.io.files import atomic_file
 from fusion.io.tum import format_tum_line
@@ -54,6 +55,7 @@ from fusion.sim.config import ScenarioConfig
 from fusion.sim.poses import increments
 from fusion.sim.run import SimRun
 from fusion.sim.world import resolve_map_path
+from houghloc.yaml_io import read_yaml
 
 HOSTNAME = "sim"
 LASER_TYPE_SIMULATED = 3
@@ -164,10 +166,15 @@ def load_scenario(path: str | Path) -> ScenarioConfig:
     """Read a scenario YAML; a relative ``map`` is resolved against the file's directory first
     (then the working directory and ``configs/maps``) and stored as an absolute path."""
     path = Path(path)
-    raw = yaml.safe_load(path.read_text(encoding="utf-8"))
+    raw = read_yaml(path, ValueError, "scenario")
     if not isinstance(raw, dict):
         raise ValueError(f"scenario {path}: expected a mapping, got {type(raw).__name__}")
-    cfg = ScenarioConfig.model_validate(raw)
+    try:
+        cfg = ScenarioConfig.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(part) for part in err["loc"]) or "entry"
+        raise ValueError(f"scenario {path}: {where}: {err['msg']}") from None
     map_path = resolve_map_path(cfg.map, base=path.parent)
     return cfg.model_copy(update={"map": str(map_path)})
 
