@@ -58,6 +58,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from houghloc.config import HoughConfig
 from houghloc.displacement import Displacement, estimate_displacement
 from houghloc.geometry import TWO_PI, wrap_angle
+from houghloc.localize import scan_reach
 from houghloc.matching import Matches, associate
 from houghloc.refine import Lines
 from houghloc.segment_map import References, SegmentMap
@@ -417,7 +418,8 @@ def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
     pts_s, members_s = pts[sample], lines.members[sample]
     scores = point_scores(cells, pts_s, members_s, walls, config)
     keep = cluster(cells, scores.score, config)[: config.max_refined]
-    hyps = [_refined(cells[j], lines, pts, pts_s, members_s, map, walls, kinds, config)
+    reach = scan_reach(pts)
+    hyps = [_refined(cells[j], lines, reach, pts_s, members_s, map, walls, kinds, config)
             for j in keep]
     hyps = [h for h in hyps if h is not None and _valid(h, config)]
     if not hyps:
@@ -540,7 +542,8 @@ def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMa
     pts_s, members_s = pts[sample_i], lines.members[sample_i]
     # the weighted fit ranks the clusters: a plain count is flat around the true s
     keep = cluster(cells, peak_fit, config)[: config.max_refined]
-    hyps = [_slid(cells[j], lines, pts, pts_s, members_s, map, walls, kinds, config)
+    reach = scan_reach(pts)
+    hyps = [_slid(cells[j], lines, reach, pts_s, members_s, map, walls, kinds, config)
             for j in keep]
     hyps = [h for h in hyps if h is not None and _valid(h, config)]
     if not hyps:
@@ -550,13 +553,12 @@ def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMa
     return _decide(hyps, len(coarse), config)
 
 
-def _slid(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_s: NDArray,
+def _slid(pose: NDArray, lines: Lines, max_range: float, pts_s: NDArray, members_s: NDArray,
           map: SegmentMap, walls: WallDistance, kinds: tuple[str, ...],
           config: GlobalMatchConfig) -> Hypothesis | None:
     """A pose found by sliding, scored like a refined one. The lines matched there (all
     parallel: rank 2) refine the heading and the position across them; along them the pose
     stays where the points put it, with σ ``slide_sigma``."""
-    max_range = _reach(pts)
     found = _matched_at(pose, lines, map, kinds, max_range, config)
     if found is None or len(found[1]) < 2:
         return None
@@ -803,15 +805,14 @@ def cluster(poses: NDArray, scores: NDArray, config: GlobalMatchConfig) -> list[
     return kept
 
 
-def _refined(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_s: NDArray,
-             map: SegmentMap, walls: WallDistance, kinds: tuple[str, ...],
+def _refined(pose: NDArray, lines: Lines, max_range: float, pts_s: NDArray,
+             members_s: NDArray, map: SegmentMap, walls: WallDistance, kinds: tuple[str, ...],
              config: GlobalMatchConfig) -> Hypothesis | None:
     """Weighted least squares on the lines matched at a hypothesis (DESIGN §3.5), then rescored.
 
     The hypothesis is treated as a guess with a tight prior (``refine_sigma_*``): the Hough-domain
     gates of :func:`associate` then only admit the lines that this pose explains.
     """
-    max_range = _reach(pts)
     pose = np.array([pose[0], pose[1], float(wrap_angle(pose[2]))])
     # refine_iterations corrections, then one more (cheap) solve at the last linearisation
     # point, to which the covariance belongs
@@ -825,11 +826,6 @@ def _refined(pose: NDArray, lines: Lines, pts: NDArray, pts_s: NDArray, members_
             pose[2] = float(wrap_angle(pose[2]))
     return _scored(pose, disp.cov, refs, matches, pts_s, members_s, map, walls, kinds, max_range,
                    config)
-
-
-def _reach(pts: NDArray) -> float:
-    """The range within which map lines can explain the points (their farthest, plus a margin)."""
-    return float(np.sqrt((pts**2).sum(axis=1).max())) + 0.5
 
 
 def _matched_at(pose: NDArray, lines: Lines, map: SegmentMap, kinds: tuple[str, ...],

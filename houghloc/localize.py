@@ -82,6 +82,12 @@ def clean_points(points_xy: ArrayLike) -> tuple[NDArray[np.float64], int]:
     return pts[finite], int((~finite).sum())
 
 
+def scan_reach(points: NDArray[np.float64]) -> float:
+    """How far map lines can be seen in these (non-empty) points: the farthest point plus half a
+    metre, rounded up to whole metres so that the map's memoised visibility is reused."""
+    return float(math.ceil(math.sqrt(np.einsum("ij,ij->i", points, points).max()) + 0.5))
+
+
 def observe_lines(points: NDArray[np.float64], config: HoughConfig
                   ) -> tuple[HoughGrid, NDArray[np.int64], Lines]:
     """Steps 2–3 and §3.3: vote, find peaks, refine them to lines (strongest first)."""
@@ -133,9 +139,7 @@ def localize_scan(
     stages = {"n_points": len(points), "grid": grid, "accumulator": acc, "lines": lines}
     if len(lines) == 0:
         return _empty(guess, f"no line in the scan{dropped}", **stages)
-    # the scan's reach, rounded up to whole metres so that the memoised visibility is reused
-    max_range = config.max_range or math.ceil(
-        math.sqrt(np.einsum("ij,ij->i", points, points).max()) + 0.5)
+    max_range = config.max_range or scan_reach(points)
     refs = map.references(guess, max_range, config.reference_kinds, config.visibility_rays)
     stages["references"] = refs
     if len(refs) == 0:
