@@ -13,12 +13,12 @@ import math
 from pathlib import Path
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from fusion.ambiguity import AmbiguityConfig
 from fusion.motion import OdometryMotionConfig
 from houghloc import HoughConfig
-from houghloc.yaml_io import read_yaml
+from houghloc.yaml_io import read_yaml, validated
 
 
 class ConfigError(ValueError):
@@ -85,11 +85,4 @@ class LocalizerConfig(_Strict):
 
     @classmethod
     def from_dict(cls, raw: object, source: str = "<dict>") -> LocalizerConfig:
-        if not isinstance(raw, dict):
-            raise ConfigError(f"config {source}: expected a mapping, got {type(raw).__name__}")
-        try:
-            return cls.model_validate(raw)
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            where = ".".join(str(p) for p in err["loc"])
-            raise ConfigError(f"config {source}: {where}: {err['msg']}") from None
+        return validated(cls, raw, ConfigError, "config", source)

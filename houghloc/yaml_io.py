@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TypeVar
 
 import yaml
+from pydantic import BaseModel, ValidationError
+
+Model = TypeVar("Model", bound=BaseModel)
 
 
 def read_yaml(path: str | Path, error: type[Exception], what: str) -> object:
@@ -22,3 +26,17 @@ def read_yaml(path: str | Path, error: type[Exception], what: str) -> object:
         raise error(f"{what} {path}: cannot read ({exc})") from None
     except yaml.YAMLError as exc:
         raise error(f"{what} {path}: not valid YAML ({exc})") from None
+
+
+def validated(model: type[Model], raw: object, error: type[Exception], what: str,
+              source: str) -> Model:
+    """``raw`` (a mapping read from ``source``) validated as ``model``; anything else raises
+    ``error`` with ``"{what} {source}: field.path: problem"`` for the first problem."""
+    if not isinstance(raw, dict):
+        raise error(f"{what} {source}: expected a mapping, got {type(raw).__name__}")
+    try:
+        return model.model_validate(raw)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(part) for part in err["loc"]) or "entry"
+        raise error(f"{what} {source}: {where}: {err['msg']}") from None

@@ -31,7 +31,7 @@ def test_bench_fusion_every_section() -> None:
     out = _run("bench_fusion", "--duration", "10", "--seeds", "2", "--log-minutes", "0.1", "0.2")
     for section in range(1, 7):
         assert f"=== {section}." in out
-    assert "target ≥ 1000 scans/s" in out and "peak RSS growth" in out
+    assert "target ≥ 1000 scans/s" in out and "peak RSS growth" in out and "× peer" in out
 
 
 def test_bench_localize_and_global_and_rerun() -> None:
@@ -46,3 +46,4 @@ def test_bench_real_on_short_slices() -> None:
     out = _run("bench_real", "--scans", "40")
     for name in ("intel", "fr079", "aces"):
         assert f"{name}: 40 scans" in out
+    assert "× peer" in out

@@ -47,7 +47,6 @@ from typing import IO, Literal
 
 import numpy as np
 import yaml
-from pydantic import ValidationError
 
 from fusion.io.files import atomic_file
 from fusion.io.tum import format_tum_line
@@ -55,7 +54,7 @@ from fusion.sim.config import ScenarioConfig
 from fusion.sim.poses import increments
 from fusion.sim.run import SimRun
 from fusion.sim.world import resolve_map_path
-from houghloc.yaml_io import read_yaml
+from houghloc.yaml_io import read_yaml, validated
 
 HOSTNAME = "sim"
 LASER_TYPE_SIMULATED = 3
@@ -167,14 +166,7 @@ def load_scenario(path: str | Path) -> ScenarioConfig:
     (then the working directory and ``configs/maps``) and stored as an absolute path."""
     path = Path(path)
     raw = read_yaml(path, ValueError, "scenario")
-    if not isinstance(raw, dict):
-        raise ValueError(f"scenario {path}: expected a mapping, got {type(raw).__name__}")
-    try:
-        cfg = ScenarioConfig.model_validate(raw)
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        where = ".".join(str(part) for part in err["loc"]) or "entry"
-        raise ValueError(f"scenario {path}: {where}: {err['msg']}") from None
+    cfg = validated(ScenarioConfig, raw, ValueError, "scenario", str(path))
     map_path = resolve_map_path(cfg.map, base=path.parent)
     return cfg.model_copy(update={"map": str(map_path)})
 
