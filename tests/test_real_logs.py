@@ -91,7 +91,7 @@ def test_intel_whole_log_never_lost() -> None:
 
 @pytest.mark.slow
 def test_fr079_whole_log_keeps_tracking() -> None:
-    # measured: ATE 10.1 cm RMSE, 1.18 m max, 4.0 % lost (most by the heading alone, in turns
+    # measured: ATE 9.6 cm RMSE, 1.09 m max, 3.9 % lost (most by the heading alone, in turns
     # through cluttered rooms; no episode longer than 12 scans); with tracking given up after 25
     # scans: 46 cm, 4.35 m, 8.2 %
     result = score(run(_need("fr079")))
