@@ -183,7 +183,8 @@ def bench_gating(duration: float, seed: int) -> None:
         run = simulated(scenario, seed, duration)
         config = config_for(scenario)
         clean = localize(run, config)
-        tracker = OutlierInjectingTracker(config, run.odom_truth[0], 0.05, seed)
+        tracker = OutlierInjectingTracker.from_config(config.filter, run.odom_truth[0],
+                                                      fraction=0.05, seed=seed)
         corrupted = localize(run, config, tracker)
         shifted = np.isin(corrupted.result.t, tracker.injected_times)
         rest_clean = _rmse(clean.ate.position_errors[~shifted])

@@ -61,13 +61,12 @@ def localize_simulated(run: SimRun, config: LocalizerConfig,
 class OutlierInjectingTracker(PoseTracker):
     """A tracker that shifts a ``fraction`` of the fixes by ``shift`` metres in a random direction
     (deterministic by ``seed``) and remembers the times of the shifted ones: gross outliers for
-    gating experiments (pass it to :func:`localize_simulated`)."""
+    gating experiments (pass it to :func:`localize_simulated`). Build it with
+    ``OutlierInjectingTracker.from_config(config.filter, pose, fraction=…, seed=…)``."""
 
-    def __init__(self, config: LocalizerConfig, initial_pose: ArrayLike, fraction: float,
-                 seed: int, shift: float = 1.0) -> None:
-        fc = config.filter
-        super().__init__(initial_pose, fc.initial_cov, fc.motion, fc.history_seconds,
-                         fc.gate_probability, fc.delayed_updates)
+    def __init__(self, *tracker_args: object, fraction: float, seed: int, shift: float = 1.0,
+                 **tracker_kwargs: object) -> None:
+        super().__init__(*tracker_args, **tracker_kwargs)
         self.fraction, self.shift = fraction, shift
         self.rng = np.random.default_rng(seed)
         self.injected_times: list[float] = []

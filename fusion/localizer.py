@@ -83,8 +83,7 @@ class Localizer:
         self.logger = logger or NullLogger()
         fc = self.config.filter
         pose = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=float)
-        self.tracker = PoseTracker(pose, fc.initial_cov, fc.motion, fc.history_seconds,
-                                   fc.gate_probability, fc.delayed_updates)
+        self.tracker = PoseTracker.from_config(fc, pose)
         self.stats = LocalizerStats()
         calibration = OdometryCalibration(fc.motion.translation_scale, fc.motion.rotation_scale)
         self._calibrate = None if calibration.identity else calibration

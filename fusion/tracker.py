@@ -32,6 +32,7 @@ import math
 from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,6 +46,9 @@ from fusion.motion import (
     interpolate,
 )
 from houghloc.geometry import wrap_angle
+
+if TYPE_CHECKING:  # the config module imports the filter's pieces, not the other way round
+    from fusion.config import FilterConfig
 
 log = logging.getLogger(__name__)
 
@@ -118,6 +122,14 @@ class PoseTracker:
         self._nodes: deque[_Node] = deque()
         self._tail = 0  # provisional nodes: measurements newer than the newest odometry
         self._trim_length = 0  # trim when the history has this many nodes
+
+    @classmethod
+    def from_config(cls, config: FilterConfig, initial_pose: ArrayLike,
+                    **extra: object) -> PoseTracker:
+        """A tracker at ``initial_pose`` with the configured initial covariance, motion model,
+        history, gate and delayed-measurement handling (``extra``: a subclass's own settings)."""
+        return cls(initial_pose, config.initial_cov, config.motion, config.history_seconds,
+                   config.gate_probability, config.delayed_updates, **extra)
 
     # ----------------------------------------------------------------- reading the estimate
     @property

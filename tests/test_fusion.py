@@ -186,7 +186,8 @@ def check_gating(scenario: str, seed: int, duration: float) -> None:
     run = simulated(scenario, seed, duration)
     config = config_for(scenario)
     clean = localize(run, config)
-    tracker = OutlierInjectingTracker(config, run.odom_truth[0], fraction=0.05, seed=seed)
+    tracker = OutlierInjectingTracker.from_config(config.filter, run.odom_truth[0],
+                                                   fraction=0.05, seed=seed)
     corrupted = localize(run, config, tracker)
 
     injected = len(tracker.injected_times)
