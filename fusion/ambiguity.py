@@ -222,12 +222,13 @@ class AmbiguityManager:
             c.hold_fit_ratio is not None or c.local_search_xy is not None
 
     def tracking_step(self, t: float, status: str, cov: NDArray, pose: NDArray | None = None,
-                      odom: NDArray | None = None, spacing: float | None = None,
+                      odom: NDArray | None = None,
+                      in_view: tuple[NDArray, NDArray] | None = None,
                       guess_fit: float | None = None) -> None:
         """After a tracking scan: count scans without a usable fix (not those whose
         ``guess_fit``, the fraction of points on walls at the guess, holds up: see
-        ``hold_fit_ratio``); check the covariance against ``spacing``, the closest parallel lines
-        in view (the map's closest pair if not given)."""
+        ``hold_fit_ratio``); check the covariance against the closest parallel lines in view,
+        ``in_view`` the references' robot-frame (θ, ρ) (the map's closest pair if not given)."""
         if self.state is not State.TRACKING:
             return
         if pose is not None and odom is not None:  # the belief, should tracking be abandoned
@@ -246,9 +247,15 @@ class AmbiguityManager:
             self._go(t, State.COLLECTING,
                      f"{self._without_fix} scans without a usable fix (last: {status})")
             return
-        spacing = self._line_spacing if spacing is None else spacing
         sigma = math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
-        if sigma > self.config.max_position_sigma_fraction * spacing:
+        fraction = self.config.max_position_sigma_fraction
+        if in_view is None:
+            spacing = self._line_spacing
+        elif sigma > fraction * _SAME_WALL_GAP:
+            spacing = visible_parallel_spacing(*in_view)
+        else:  # no spacing in view can be smaller: the usual case, without the K×K comparison
+            return
+        if sigma > fraction * spacing:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
                                           f"{spacing:.2f} m between parallel lines in view")
 
@@ -705,8 +712,11 @@ def _same_pose(a: NDArray, b: NDArray, xy: float = 0.3,
                 and abs(wrap_scalar(a[2] - b[2])) <= theta)
 
 
-def visible_parallel_spacing(theta: NDArray, rho: NDArray,
-                             angle_tol: float = math.radians(2.0), min_gap: float = 0.05) -> float:
+_SAME_WALL_GAP = 0.05  # m: parallel references closer than this are pieces of one wall
+
+
+def visible_parallel_spacing(theta: NDArray, rho: NDArray, angle_tol: float = math.radians(2.0),
+                             min_gap: float = _SAME_WALL_GAP) -> float:
     """The smallest ρ difference between references seen at the same robot-frame θ: the lines
     that nearest-neighbour matching can confuse from here (inf if there are none)."""
     if len(theta) < 2:

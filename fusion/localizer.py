@@ -16,7 +16,7 @@ from time import perf_counter
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.ambiguity import AmbiguityManager, State, visible_parallel_spacing
+from fusion.ambiguity import AmbiguityManager, State
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
 from fusion.motion import OdometryCalibration
@@ -177,9 +177,9 @@ class Localizer:
             self.stats.seconds["update"] += perf_counter() - t1
         estimate = self._finish(t, status, fix, outcome, sensor, points)
         refs = fix.references
-        spacing = visible_parallel_spacing(refs.theta, refs.rho) if refs is not None else None
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
-                                   self.tracker.odometry_at(t), spacing, guess_fit)
+                                   self.tracker.odometry_at(t),
+                                   None if refs is None else (refs.theta, refs.rho), guess_fit)
         return estimate
 
     def _use_fix(self, t: float, fix: ScanCorrection, points: NDArray, cfg: SensorConfig,

@@ -6,9 +6,11 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from fusion import Localizer, LocalizerConfig
-from fusion.ambiguity import State
+from fusion.ambiguity import AmbiguityConfig, AmbiguityManager, State, visible_parallel_spacing
 from fusion.events import Odometry, PointSet, Scan
 from fusion.sim import (
     CameraConfig,
@@ -169,7 +171,6 @@ def test_fit_judges_fixes_the_matcher_cannot(office):
     (however well it passed the gates), one the matcher could not vouch for is used when it puts
     clearly more points on walls than the guess, and a scan whose guess still fits as well as the
     accepted ones did does not count as a failure."""
-    from fusion.ambiguity import AmbiguityConfig, AmbiguityManager
 
     config = AmbiguityConfig(max_fit_loss=0.1, min_fit_gain=0.03, hold_fit_ratio=0.9,
                              misfit_ratio=0.0, max_scans_without_fix=3)
@@ -238,7 +239,6 @@ def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
 def test_local_search_is_wanted_when_the_scan_fits_worse_than_usual(office):
     """At the guess when no fix was used; at the fix when one was: two lines matched to the
     wrong walls after a slip pass the gates and still leave the scan off the walls."""
-    from fusion.ambiguity import AmbiguityConfig, AmbiguityManager
 
     manager = AmbiguityManager(office, AmbiguityConfig(local_search_xy=1.0, hold_fit_ratio=0.9))
     pose = np.array([5.0, 6.0, 0.0])
@@ -466,3 +466,24 @@ def test_kidnap_into_a_corridor_facing_along_it():
         update={"global_match": gm})})
     later, _, _, _ = kidnap_trial(seed=12, config=no_slide)
     assert later is None or later > 5.0
+
+
+# references in a few directions, a little apart: parallel pairs at every spacing
+_REFERENCE = st.tuples(st.sampled_from([0.0, 0.5 * math.pi, 2.0]), st.floats(-0.05, 0.05),
+                       st.floats(0.0, 3.0)).map(lambda r: (r[0] + r[1], r[2]))
+
+
+@given(st.lists(_REFERENCE, max_size=6), st.floats(0.0, 1.0), st.floats(0.1, 3.0))
+def test_tracking_gives_up_when_sigma_exceeds_the_parallel_spacing_in_view(
+        office, refs: list[tuple[float, float]], sigma: float, fraction: float) -> None:
+    """The covariance check leaves tracking exactly when σ_xy > fraction × the closest spacing of
+    parallel references in view (the check skips computing the spacing when σ is below any
+    spacing it could return)."""
+    manager = AmbiguityManager(office,
+                               AmbiguityConfig(max_position_sigma_fraction=fraction))
+    theta, rho = np.array([r[0] for r in refs]), np.array([r[1] for r in refs])
+    manager.tracking_step(1.0, "accepted", np.diag([sigma**2, 0.25 * sigma**2, 1e-4]),
+                          in_view=(theta, rho))
+    expected = sigma > fraction * visible_parallel_spacing(theta, rho)
+    assert (manager.state is State.COLLECTING) == expected
+
