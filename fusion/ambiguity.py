@@ -47,6 +47,8 @@ from houghloc.global_match import Neighbourhood, to_world, wall_distance
 from houghloc.localize import clean_points
 from houghloc.matching import gate_threshold
 
+_SAME_WALL_GAP = 0.05  # m: parallel references closer than this are pieces of one wall
+
 
 class State(StrEnum):
     TRACKING = "tracking"
@@ -256,7 +258,7 @@ class AmbiguityManager:
         else:  # no spacing in view can be smaller: the usual case, without the K×K comparison
             return
         if sigma > fraction * spacing:
-            self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds half the "
+            self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds {fraction:g} of the "
                                           f"{spacing:.2f} m between parallel lines in view")
 
     def wants_local_search(self, guess_fit: float | None, fix_fit: float | None = None) -> bool:
@@ -710,9 +712,6 @@ def _same_pose(a: NDArray, b: NDArray, xy: float = 0.3,
                theta: float = math.radians(5.0)) -> bool:
     return bool(math.hypot(a[0] - b[0], a[1] - b[1]) <= xy
                 and abs(wrap_scalar(a[2] - b[2])) <= theta)
-
-
-_SAME_WALL_GAP = 0.05  # m: parallel references closer than this are pieces of one wall
 
 
 def visible_parallel_spacing(theta: NDArray, rho: NDArray, angle_tol: float = math.radians(2.0),

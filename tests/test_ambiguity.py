@@ -486,4 +486,3 @@ def test_tracking_gives_up_when_sigma_exceeds_the_parallel_spacing_in_view(
                           in_view=(theta, rho))
     expected = sigma > fraction * visible_parallel_spacing(theta, rho)
     assert (manager.state is State.COLLECTING) == expected
-
