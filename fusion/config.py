@@ -17,6 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from fusion.ambiguity import AmbiguityConfig
 from fusion.motion import OdometryMotionConfig
+from fusion.scan_odometry import ScanOdometryConfig
 from houghloc import HoughConfig
 from houghloc.yaml_io import read_yaml, validated
 
@@ -74,6 +75,16 @@ class LocalizerConfig(_Strict):
     sensors: dict[str, SensorConfig] = Field(default_factory=lambda: {"laser": SensorConfig()})
     filter: FilterConfig = FilterConfig()
     ambiguity: AmbiguityConfig = AmbiguityConfig()
+    scan_odometry: ScanOdometryConfig = ScanOdometryConfig()
+
+    @model_validator(mode="after")
+    def _scan_odometry_sensor_known(self) -> LocalizerConfig:
+        so = self.scan_odometry
+        if so.enabled and so.sensor not in self.sensors:
+            known = ", ".join(self.sensors)
+            raise ValueError(f"scan_odometry.sensor {so.sensor!r} is not a configured sensor "
+                             f"(configured: {known})")
+        return self
 
     @classmethod
     def from_yaml(cls, path: str | Path | None) -> LocalizerConfig:

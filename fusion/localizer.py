@@ -2,6 +2,7 @@
 
     on_odometry ─▶ tracker.predict                    (EKF, history for late data)
     on_scan ─▶ points ─▶ guess at the scan's time ─▶ localize_scan ─▶ tracker.apply ─▶ estimate
+                 └─▶ (scan odometry: ICP to the previous scan ─▶ tracker.correct_odometry)
 
 Follow one scan: :meth:`Localizer.on_points` is the whole story.
 """
@@ -20,6 +21,7 @@ from fusion.ambiguity import AmbiguityManager, State
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
 from fusion.motion import OdometryCalibration
+from fusion.scan_odometry import ScanOdometry
 from fusion.tracker import PoseTracker
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
@@ -87,6 +89,8 @@ class Localizer:
         self.stats = LocalizerStats()
         calibration = OdometryCalibration(fc.motion.translation_scale, fc.motion.rotation_scale)
         self._calibrate = None if calibration.identity else calibration
+        so = self.config.scan_odometry
+        self.scan_odometry = ScanOdometry(so, self.tracker.motion) if so.enabled else None
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
         self.logger.log_map(map)
         self._start_reason = "initial pose given"
@@ -111,9 +115,12 @@ class Localizer:
 
     def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
         """Predict with the odometry increment since the last reading (its frame is arbitrary),
-        after removing the configured scale errors (``filter.motion.*_scale``)."""
+        after removing the configured scale errors (``filter.motion.*_scale``) and, with scan
+        odometry, in the frame the scan matches corrected."""
         if self._calibrate is not None:
             x, y, theta = self._calibrate(x, y, theta)
+        if self.scan_odometry is not None and math.isfinite(x + y + theta):
+            x, y, theta = self.scan_odometry.on_wheels(x, y, theta)
         self.tracker.on_odometry(t, x, y, theta)
         self.logger.log_odometry(t, (x, y, theta))
 
@@ -131,6 +138,7 @@ class Localizer:
     def on_points(self, t: float, points: ArrayLike, sensor: str = "camera") -> Estimate:
         """Points in the sensor frame taken at time ``t`` (possibly in the past): fuse them.
 
+        0. with scan odometry, the motion since the previous scan is corrected by matching them;
         1. the estimate at ``t`` is the guess, its covariance sets the matching gates;
         2. the Hough method turns the points into a pose fix with its covariance and rank;
         3. an unambiguous fix updates the filter at ``t`` (late fixes re-propagate the odometry
@@ -141,6 +149,8 @@ class Localizer:
             self.logger.log_state(t, self.manager.state.value, self._start_reason)
         self.stats.scans += 1
         points = _to_base(np.asarray(points, dtype=float).reshape(-1, 2), cfg)
+        if self.scan_odometry is not None and sensor == self.scan_odometry.config.sensor:
+            self._correct_odometry(t, points)
         if self.manager.state is not State.TRACKING:
             return self._global_step(t, points, sensor)
         prior = self.tracker.pose_at(t)
@@ -181,6 +191,20 @@ class Localizer:
                                    self.tracker.odometry_at(t),
                                    None if refs is None else (refs.theta, refs.rho), guess_fit)
         return estimate
+
+    def _correct_odometry(self, t: float, points: NDArray) -> None:
+        """The odometry at the scan corrected by matching it to the previous scan."""
+        t0 = perf_counter()
+        correction = self.scan_odometry.match(t, points)
+        if correction is not None:
+            step_cov = correction.step_cov if self.config.scan_odometry.measured_noise else None
+            if self.tracker.correct_odometry(t, correction.pose, correction.since, step_cov):
+                self.scan_odometry.commit(correction)
+                self.logger.log_odometry(t, correction.pose)  # the odometry path shows it
+            else:
+                self.scan_odometry.skip(t, points)
+        self.stats.seconds["scan odometry"] = (self.stats.seconds.get("scan odometry", 0.0)
+                                               + perf_counter() - t0)
 
     def _use_fix(self, t: float, fix: ScanCorrection, points: NDArray, cfg: SensorConfig,
                  guess_fit: float | None, fix_fit: float | None

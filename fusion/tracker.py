@@ -220,6 +220,46 @@ class PoseTracker:
             self._absorb_provisional(lo_index, t, odom, dt, jump)
         self._trim()
 
+    def correct_odometry(self, t: float, pose: ArrayLike, since: float | None = None,
+                         step_cov: ArrayLike | None = None) -> bool:
+        """A corrected odometry pose at t (scan matching measured the motion the wheels
+        misreported): it replaces the newest reading when taken at its time, or follows it as
+        a new reading; later readings must come in the corrected frame. Not a jump, whatever
+        its size: the correction is bounded by its own checks.
+
+        ``since``, ``step_cov``: the correction measured the whole motion since the reading at
+        ``since``, with this covariance; the readings in between are then merged into one step
+        with that noise (unless measurements were taken there: the step keeps the motion
+        model's noise). False, and nothing changed, when t is older than the newest reading,
+        measurements wait after it, or the pose is not finite."""
+        odom = np.array(pose, dtype=float).reshape(3)
+        if not (self._nodes and self._tail == 0 and np.isfinite(odom).all()):
+            return False
+        nodes = self._nodes
+        newest = nodes[-1]
+        if t < newest.t or (t == newest.t and (len(nodes) < 2 or newest.measurements)):
+            return False
+        if t == newest.t:
+            nodes.pop()
+        start = -1
+        if since is not None and step_cov is not None:
+            j = bisect_right(nodes, since, key=_node_time) - 1
+            merged = range(j + 1, len(nodes))
+            if (j >= 0 and nodes[j].t == since
+                    and not any(nodes[i].measurements for i in merged)):
+                start = j
+        if start >= 0:
+            for _ in range(len(nodes) - 1 - start):
+                nodes.pop()
+            step = increment(nodes[start].odom, odom)
+            q = np.array(step_cov, dtype=float).reshape(3, 3)
+        else:
+            step = increment(nodes[-1].odom, odom)
+            q = self.motion.noise(step)
+        nodes.append(_Node(t, odom, None, None, step, q))
+        self._trim()
+        return True
+
     def _absorb_provisional(
         self, lo_index: int, t: float, odom: NDArray[np.float64], dt: float, jump: bool
     ) -> None:

@@ -1,0 +1,229 @@
+"""Wheel odometry corrected by matching each laser scan to the previous one.
+
+Wheels slip in turns and some robots' odometry misreports motion outright (Freiburg 079 never
+reports driving backwards). Two consecutive scans of a laser see the same walls and furniture a
+fraction of a second apart, so aligning them measures the motion between them to millimetres,
+clutter included, where the Hough fixes need walls the map knows. The wheels still count where
+the scans cannot: along a featureless corridor the alignment's information matrix is
+near-singular and the fusion below keeps the wheels' increment in that direction.
+
+Per scan ``k`` (all increments in the robot frame of scan ``k − 1``)::
+
+    δ_w, Q_w   the wheel increment since scan k − 1 and its noise (the motion model)
+    δ_s, Q_s   the point-to-line ICP of scan k onto scan k − 1, started at δ_w
+    δ = (Q_w⁻¹ + Q_s⁻¹)⁻¹ (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s)                (information-weighted mean)
+
+and the corrected odometry pose of scan ``k`` is that of scan ``k − 1`` ⊕ δ; later wheel readings
+are chained onto it. The filter then sees a better odometry and keeps its own motion noise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
+
+from fusion.motion import OdometryMotionModel, increment
+from houghloc.geometry import compose, wrap_scalar
+
+# The wheels' noise while they report no motion is zero; this floor (σ = 1 mm, 0.06°) keeps its
+# information finite, and still lets the wheels outweigh a match when the robot stands.
+_STILL_NOISE = 1e-6 * np.eye(3)
+_DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e3 per axis
+
+
+class ScanOdometryConfig(BaseModel):
+    """Scan-to-scan matching of one laser, fused into the wheel odometry (off by default)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    enabled: bool = False
+    sensor: str = Field("laser", description="the sensor whose scans are matched")
+    iterations: int = Field(20, ge=1, description="ICP iterations at most")
+    max_pair_distance: float = Field(
+        0.6, gt=0, description="m, pairing distance of the first iteration; it shrinks to "
+        "final_pair_distance, so a start 0.5 m off still converges and outliers end unpaired")
+    final_pair_distance: float = Field(0.15, gt=0)
+    max_neighbour_gap: float = Field(
+        0.5, gt=0, description="m; a point farther than this from a neighbour in beam order "
+        "has no normal and is not paired (the scan jumps between objects there)")
+    huber: float = Field(0.03, gt=0, description="m, residuals beyond weigh less (robust ICP)")
+    min_overlap: float = Field(
+        0.5, gt=0, le=1, description="fraction of the scan's points paired at the end; less: the "
+        "match is not used (a door passed, a person in front of the laser)")
+    min_points: int = Field(30, ge=3, description="scans with fewer points are not matched")
+    noise_scale: float = Field(
+        20.0, ge=1, description="ICP covariance × this: the residuals are not independent "
+        "(one wall's points err together), so the raw covariance is far too confident")
+    floor_xy: float = Field(0.01, ge=0, description="m, least σ of a matched increment")
+    floor_theta_deg: float = Field(0.3, ge=0, description="least σ of a matched turn")
+    max_correction_xy: float = Field(
+        0.5, gt=0, description="m; a match farther from the wheels' increment is not used")
+    max_correction_theta_deg: float = Field(20.0, gt=0)
+    measured_noise: bool = Field(
+        True, description="the filter predicts a matched increment with its fused covariance; "
+        "false: with the motion model's noise for the corrected increment")
+
+
+@dataclass(frozen=True, slots=True)
+class IcpResult:
+    """The increment that maps the current scan onto the previous one, and its covariance."""
+
+    delta: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    overlap: float  # fraction of the current scan's points paired at the last iteration
+
+
+def scan_normals(points: NDArray[np.float64], max_gap: float
+                 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Unit normals of a scan in beam order (from its two neighbours), and which are usable:
+    not where a neighbour is farther than ``max_gap`` (the scan jumps from one object to
+    another there, and a normal across the jump would invent a surface)."""
+    tangent = np.empty_like(points)
+    tangent[1:-1] = points[2:] - points[:-2]
+    tangent[0], tangent[-1] = points[1] - points[0], points[-1] - points[-2]
+    normals = np.column_stack((-tangent[:, 1], tangent[:, 0]))
+    length = np.hypot(normals[:, 0], normals[:, 1])
+    gap = np.hypot(*np.diff(points, axis=0).T)
+    usable = (length > 1e-9) & (np.r_[0.0, gap] <= max_gap) & (np.r_[gap, 0.0] <= max_gap)
+    normals[usable] /= length[usable, None]
+    return normals, usable
+
+
+def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64],
+                      guess: NDArray[np.float64], config: ScanOdometryConfig) -> IcpResult | None:
+    """Align ``current`` (robot frame at k) onto ``previous`` (robot frame at k − 1), started at
+    the increment ``guess``: Gauss–Newton on Σ w ρ(nᵢ·(R qᵢ + t − pᵢ)) with Huber weights, pairs
+    by nearest neighbour within a distance that shrinks over the iterations. None when too few
+    points pair. Cov = σ̂² (JᵀWJ)⁻¹, the Gauss–Newton covariance at the optimum."""
+    if len(previous) < config.min_points or len(current) < config.min_points:
+        return None
+    tree = cKDTree(previous)
+    normals, usable = scan_normals(previous, config.max_neighbour_gap)
+    x = np.array(guess, dtype=float)
+    shrink = max(1.0, 0.6 * config.iterations)
+    for iteration in range(config.iterations):
+        reach = config.max_pair_distance + (config.final_pair_distance
+                                            - config.max_pair_distance) * min(1.0,
+                                                                             iteration / shrink)
+        c, s = math.cos(x[2]), math.sin(x[2])
+        moved = current @ np.array([[c, s], [-s, c]]) + x[:2]
+        distance, nearest = tree.query(moved, distance_upper_bound=reach)
+        paired = np.isfinite(distance)
+        paired[paired] &= usable[nearest[paired]]
+        if paired.sum() < config.min_points:
+            return None
+        n, q = normals[nearest[paired]], moved[paired]
+        residual = np.einsum("ij,ij->i", n, q - previous[nearest[paired]])
+        arm = q - x[:2]  # ∂(R q)/∂θ = (−(Rq)_y, (Rq)_x)
+        jacobian = np.column_stack((n[:, 0], n[:, 1], n[:, 1] * arm[:, 0] - n[:, 0] * arm[:, 1]))
+        weight = 1.0 / np.maximum(1.0, np.abs(residual) / config.huber)
+        # damped: along a featureless corridor one direction has no information; the step
+        # leaves it alone and the covariance below calls it unknown (σ² ~ σ̂²/damping)
+        hessian = jacobian.T @ (jacobian * weight[:, None]) + _DAMPING * np.eye(3)
+        step = -np.linalg.solve(hessian, jacobian.T @ (weight * residual))
+        x += step
+        if np.abs(step).max() < 1e-5:
+            break
+    x[2] = wrap_scalar(x[2])
+    dof = max(1, int(paired.sum()) - 3)
+    sigma2 = max(float(weight @ residual**2) / dof, 1e-6)
+    return IcpResult(x, sigma2 * np.linalg.inv(hessian), float(paired.mean()))
+
+
+@dataclass(frozen=True, slots=True)
+class Correction:
+    """A proposed corrected odometry pose for a scan; :meth:`ScanOdometry.commit` adopts it."""
+
+    t: float
+    pose: NDArray[np.float64]
+    since: float  # the time of the reference scan
+    step_cov: NDArray[np.float64]  # covariance of the corrected increment since then
+    points: NDArray[np.float64]
+    wheels: NDArray[np.float64]  # the wheel odometry pose it corrects
+
+
+class ScanOdometry:
+    """The odometry stream with each scan's increment corrected by scan matching.
+
+    :meth:`on_wheels` maps a wheel reading into the corrected frame (chained onto the last
+    corrected scan); :meth:`match` proposes the corrected pose at a scan, and :meth:`commit`
+    adopts it once the filter has taken it. A scan that is not matched or not committed leaves
+    the previous one as the reference for the next."""
+
+    def __init__(self, config: ScanOdometryConfig, motion: OdometryMotionModel) -> None:
+        self.config = config
+        self.motion = motion
+        self.matched = 0
+        self.unmatched = 0
+        self._wheels: NDArray[np.float64] | None = None  # newest wheel reading
+        self._anchor_wheels: NDArray[np.float64] | None = None  # wheels at the reference scan
+        self._anchor: NDArray[np.float64] | None = None  # corrected pose there
+        self._points: NDArray[np.float64] | None = None  # the reference scan
+        self._time = -math.inf  # and its time
+        floors = (config.floor_xy**2, config.floor_xy**2, math.radians(config.floor_theta_deg)**2)
+        self._floor = np.diag(floors)
+
+    def on_wheels(self, x: float, y: float, theta: float) -> tuple[float, float, float]:
+        """The corrected odometry pose for a wheel reading."""
+        self._wheels = np.array((x, y, theta), dtype=float)
+        if self._anchor is None:
+            self._anchor_wheels, self._anchor = self._wheels, self._wheels.copy()
+        return tuple(compose(self._anchor, increment(self._anchor_wheels, self._wheels)).tolist())
+
+    def match(self, t: float, points: NDArray[np.float64]) -> Correction | None:
+        """The corrected odometry pose at a scan taken at t (the wheels are read at their newest
+        reading), or None when the scan cannot be matched; the first scan becomes the
+        reference."""
+        if self._wheels is None or len(points) < self.config.min_points:
+            return None
+        if self._points is None:
+            self.skip(t, points)
+            return None
+        wheel_step = increment(self._anchor_wheels, self._wheels)
+        fused = self._fuse(wheel_step, point_to_line_icp(self._points, points, wheel_step,
+                                                         self.config))
+        if fused is None:
+            self.unmatched += 1
+            self.skip(t, points)
+            return None
+        self.matched += 1
+        step, cov = fused
+        return Correction(t, compose(self._anchor, step), self._time, cov, points, self._wheels)
+
+    def commit(self, correction: Correction) -> None:
+        """The filter took the corrected pose: the scan becomes the reference for the next."""
+        self._points, self._anchor_wheels, self._anchor = (correction.points, correction.wheels,
+                                                           correction.pose)
+        self._time = correction.t
+
+    def skip(self, t: float, points: NDArray[np.float64]) -> None:
+        """The scan was not corrected: it becomes the reference at its uncorrected pose (an older
+        reference would drift out of view)."""
+        self._anchor = compose(self._anchor, increment(self._anchor_wheels, self._wheels))
+        self._points, self._anchor_wheels, self._time = points, self._wheels, t
+
+    def _fuse(self, wheel_step: NDArray[np.float64],
+              icp: IcpResult | None
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """δ = Q (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s) with Q = (Q_w⁻¹ + Q_s⁻¹)⁻¹, the information-weighted
+        increment and its covariance; None when the match is unusable or too far from the
+        wheels to be believed."""
+        c = self.config
+        if icp is None or icp.overlap < c.min_overlap:
+            return None
+        matched = icp.delta.copy()
+        matched[2] = wheel_step[2] + wrap_scalar(matched[2] - wheel_step[2])
+        gap = matched - wheel_step
+        if (math.hypot(gap[0], gap[1]) > c.max_correction_xy
+                or abs(gap[2]) > math.radians(c.max_correction_theta_deg)):
+            return None
+        wheel_info = np.linalg.inv(self.motion.noise(wheel_step) + _STILL_NOISE)
+        scan_info = np.linalg.inv(icp.cov * c.noise_scale + self._floor)
+        cov = np.linalg.inv(wheel_info + scan_info)
+        cov = 0.5 * (cov + cov.T)
+        return cov @ (wheel_info @ wheel_step + scan_info @ matched), cov

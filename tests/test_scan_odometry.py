@@ -1,0 +1,178 @@
+"""Scan odometry: ICP between consecutive scans, fused with the wheels, fed to the filter.
+
+Ground truth comes from scans cast in known rooms (the simulator's ray caster) and from
+simulated runs whose wheels misreport every turn.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fusion.config import ConfigError, LocalizerConfig
+from fusion.experiment import localize_simulated
+from fusion.motion import OdometryMotionConfig, OdometryMotionModel
+from fusion.scan_odometry import ScanOdometry, ScanOdometryConfig, point_to_line_icp
+from fusion.sim import scenario_preset, simulate
+from fusion.tracker import PoseTracker
+from houghloc.geometry import compose, ranges_to_points, ray_segment_distances
+
+CONFIG = ScanOdometryConfig(enabled=True)
+ANGLES = np.radians(np.arange(-90.0, 90.5, 0.5))
+
+# A 10 × 6 m room with a cabinet and a pillar: enough structure to pin all three dof.
+ROOM = np.array([
+    [0, 0, 10, 0], [10, 0, 10, 6], [10, 6, 0, 6], [0, 6, 0, 0],
+    [6, 1, 7, 1], [7, 1, 7, 1.8], [7, 1.8, 6, 1.8],
+    [3, 4, 3.4, 4], [3.4, 4, 3.4, 4.4], [3.4, 4.4, 3, 4.4], [3, 4.4, 3, 4],
+], dtype=float)
+# A 30 m corridor 2 m wide: nothing along it to match.
+CORRIDOR = np.array([[-15, -1, 15, -1], [-15, 1, 15, 1]], dtype=float)
+
+
+def scan_points(walls: np.ndarray, pose: np.ndarray, max_range: float = 8.0) -> np.ndarray:
+    """Exact laser points (robot frame) from ``pose`` in a world of segments."""
+    dirs = np.column_stack((np.cos(ANGLES + pose[2]), np.sin(ANGLES + pose[2])))
+    ranges = ray_segment_distances(pose[:2], dirs, walls[:, :2], walls[:, 2:]).min(axis=1)
+    return ranges_to_points(ranges, ANGLES, max_range, 0.05)
+
+
+@settings(max_examples=40, deadline=None)
+@given(dx=st.floats(-0.3, 0.3), dy=st.floats(-0.1, 0.1), dth=st.floats(-10, 10),
+       ex=st.floats(-0.15, 0.15), ey=st.floats(-0.15, 0.15), eth=st.floats(-5, 5))
+def test_icp_recovers_the_motion_between_two_scans(dx, dy, dth, ex, ey, eth) -> None:
+    """Whatever the motion (30 cm, 10°) and however far the wheels' guess is from it (15 cm,
+    5°), the match lands on the true increment."""
+    before = np.array([3.0, 2.5, 0.3])
+    motion = np.array([dx, dy, math.radians(dth)])
+    previous, current = scan_points(ROOM, before), scan_points(ROOM, compose(before, motion))
+    guess = motion + np.array([ex, ey, math.radians(eth)])
+    result = point_to_line_icp(previous, current, guess, CONFIG)
+    assert result is not None and result.overlap > 0.9
+    assert np.hypot(*(result.delta[:2] - motion[:2])) < 0.005
+    assert abs(math.degrees(result.delta[2] - motion[2])) < 0.1
+
+
+def test_icp_refuses_a_scan_too_small_to_match() -> None:
+    points = scan_points(ROOM, np.array([3.0, 2.5, 0.3]))
+    assert point_to_line_icp(points, points[:10], np.zeros(3), CONFIG) is None
+
+
+def wheels_then_scan(walls: np.ndarray, start: np.ndarray, motion: np.ndarray,
+                     wheel_motion: np.ndarray, config: ScanOdometryConfig = CONFIG):
+    """A ScanOdometry fed a scan at ``start``, the wheels' ``wheel_motion``, and a scan after
+    the true ``motion``: its proposed corrected increment (or None)."""
+    scan_odometry = ScanOdometry(config, OdometryMotionModel(OdometryMotionConfig()))
+    scan_odometry.on_wheels(0.0, 0.0, 0.0)
+    assert scan_odometry.match(0.0, scan_points(walls, start)) is None  # the first: reference
+    scan_odometry.on_wheels(*wheel_motion)
+    correction = scan_odometry.match(0.2, scan_points(walls, compose(start, motion)))
+    return None if correction is None else (correction.pose, correction.step_cov)
+
+
+def test_wheels_that_report_driving_forward_while_the_robot_backs_up_are_overruled() -> None:
+    """Freiburg 079's odometry never reports reversing: the scans say where the robot went.
+    The wheels still pull by their weight (σ ≈ 2 cm over 20 cm against the match's 1 cm)."""
+    pose, cov = wheels_then_scan(ROOM, np.array([3.0, 2.5, 0.3]), np.array([-0.2, 0.0, 0.02]),
+                                 np.array([0.2, 0.0, 0.02]))
+    assert np.hypot(pose[0] + 0.2, pose[1]) < 0.2 * 0.4  # within a fifth of the wheels' error
+    assert math.sqrt(cov[0, 0]) < 0.015  # and the filter is told it is now well known
+
+
+def test_along_a_featureless_corridor_the_wheels_keep_their_say() -> None:
+    """The scans fix the heading and the position across the corridor, not along it: there
+    the fused increment stays near the wheels' 0.2 m although the robot moved 0.3 m (their
+    own correlations move it a little as the match corrects their turn)."""
+    pose, cov = wheels_then_scan(CORRIDOR, np.array([0.0, 0.2, 0.0]), np.array([0.3, 0.0, 0.0]),
+                                 np.array([0.2, 0.0, math.radians(3.0)]))
+    assert abs(pose[0] - 0.2) < 0.05
+    assert abs(math.degrees(pose[2])) < 1.0  # most of the wheels' 3° is corrected
+    assert cov[0, 0] > 25 * cov[1, 1]  # the filter learns which direction is still open
+
+
+def test_a_match_far_from_the_wheels_is_not_believed() -> None:
+    tight = ScanOdometryConfig(enabled=True, max_correction_xy=0.1)
+    assert wheels_then_scan(ROOM, np.array([3.0, 2.5, 0.3]), np.array([-0.2, 0.0, 0.0]),
+                            np.array([0.0, 0.0, 0.0]), tight) is None
+
+
+def test_scan_odometry_sensor_must_be_configured() -> None:
+    with pytest.raises(ConfigError, match=r"scan_odometry\.sensor 'lidar'"):
+        LocalizerConfig.from_dict({"scan_odometry": {"enabled": True, "sensor": "lidar"}})
+
+
+# ------------------------------------------------------------------------- the tracker's side
+def tracker_with_readings(*readings: tuple[float, float, float, float]) -> PoseTracker:
+    tracker = PoseTracker(np.zeros(3), np.diag([1e-4, 1e-4, 1e-5]))
+    for reading in readings:
+        tracker.on_odometry(*reading)
+    return tracker
+
+
+def test_a_correction_at_the_newest_readings_time_replaces_it() -> None:
+    tracker = tracker_with_readings((0.0, 0, 0, 0), (0.1, 0.1, 0, 0), (0.2, 0.2, 0, 0))
+    assert tracker.correct_odometry(0.2, (-0.2, 0.0, 0.0))
+    assert np.allclose(tracker.pose, (-0.2, 0.0, 0.0))
+    tracker.on_odometry(0.3, -0.3, 0.0, 0.0)  # later readings come in the corrected frame
+    assert np.allclose(tracker.pose, (-0.3, 0.0, 0.0))
+    assert tracker.counts.odometry_jumps == 0
+
+
+def test_a_measured_step_replaces_the_readings_since_the_previous_scan() -> None:
+    """The step since ``since`` is predicted once, with the matched covariance: P grows by
+    exactly G Q Gᵀ (the prior covariance here is carried along unchanged, F = I at θ = 0 and no
+    translation)."""
+    tracker = tracker_with_readings((0.0, 0, 0, 0), (0.1, 0.1, 0, 0.1), (0.2, 0.2, 0, 0.2))
+    before = tracker.pose_at(0.0)[1]
+    q = np.diag([1e-6, 4e-6, 1e-7])
+    assert tracker.correct_odometry(0.2, (0.0, 0.0, 0.0), since=0.0, step_cov=q)
+    assert np.allclose(tracker.cov, before + q)
+
+
+def test_a_correction_older_than_the_newest_reading_is_refused() -> None:
+    tracker = tracker_with_readings((0.0, 0, 0, 0), (0.2, 0.2, 0, 0))
+    assert not tracker.correct_odometry(0.1, (5.0, 0.0, 0.0))
+    assert not tracker.correct_odometry(0.3, (math.nan, 0.0, 0.0))
+    assert np.allclose(tracker.pose, (0.2, 0.0, 0.0))
+
+
+# ------------------------------------------------------------------------------- in the filter
+@pytest.fixture(scope="module")
+def slipping_run():
+    """The office, two minutes, on wheels whose base is 30 % off: each turn is misreported by
+    a third, the way Freiburg 079's wheels slip."""
+    cfg = scenario_preset("office-laser", seed=3, duration=120.0)
+    odometry = cfg.odometry.model_copy(update={"wheelbase_error": 0.3})
+    return simulate(cfg.model_copy(update={"odometry": odometry}))
+
+
+def dead_reckoned(run, scan_odometry: bool):
+    """The localizer with no usable fix (every fix needs more lines than a scan has): what
+    remains is its odometry, with or without the scans' correction."""
+    config = LocalizerConfig.from_dict({
+        "sensors": {"laser": {"min_fix_lines": 1000}},
+        "ambiguity": {"max_scans_without_fix": 100000},
+        "scan_odometry": {"enabled": scan_odometry},
+    })
+    return localize_simulated(run, config)
+
+
+def test_scan_odometry_keeps_the_heading_where_the_wheels_slip(slipping_run) -> None:
+    wheels, scans = dead_reckoned(slipping_run, False), dead_reckoned(slipping_run, True)
+    assert scans.localizer.stats.accepted == wheels.localizer.stats.accepted == 0
+    assert scans.localizer.scan_odometry.matched >= 0.95 * len(slipping_run.scan_t)
+    assert wheels.heading_rmse_deg > 15.0  # the wheels alone are lost within the run
+    assert scans.heading_rmse_deg < 0.25 * wheels.heading_rmse_deg
+    assert scans.position_rmse < 0.25 * wheels.position_rmse
+
+
+def test_scan_odometry_with_the_fixes_stays_as_accurate_as_on_good_wheels(slipping_run) -> None:
+    config = LocalizerConfig.from_yaml("configs/office-laser.yaml")
+    config = config.model_copy(update={"scan_odometry": CONFIG})
+    fused = localize_simulated(slipping_run, config)
+    assert fused.lost == 0
+    assert fused.position_rmse < 0.02 and fused.heading_rmse_deg < 0.3
