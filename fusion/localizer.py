@@ -148,7 +148,8 @@ class Localizer:
         if self.stats.scans == 0:  # the recording starts with the state and why
             self.logger.log_state(t, self.manager.state.value, self._start_reason)
         self.stats.scans += 1
-        points = _to_base(np.asarray(points, dtype=float).reshape(-1, 2), cfg)
+        points = np.asarray(points, dtype=float).reshape(-1, 2)
+        points = _to_base(points[np.isfinite(points).all(axis=1)], cfg)  # NaN/inf: no return
         if self.scan_odometry is not None and sensor == self.scan_odometry.config.sensor:
             self._correct_odometry(t, points)
         if self.manager.state is not State.TRACKING:

@@ -13,6 +13,10 @@ Per scan ``k`` (all increments in the robot frame of scan ``k − 1``)::
     δ_s, Q_s   the point-to-line ICP of scan k onto scan k − 1, started at δ_w
     δ = (Q_w⁻¹ + Q_s⁻¹)⁻¹ (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s)                (information-weighted mean)
 
+where Q_w is first scaled by d²/χ²₃(0.99) if d² = (δ_s − δ_w)ᵀ (Q_w + Q_s)⁻¹ (δ_s − δ_w) exceeds
+that quantile: wheels that disagree with a good match beyond their joint noise have slipped or
+misreport, and would otherwise bias every such step toward their error.
+
 and the corrected odometry pose of scan ``k`` is that of scan ``k − 1`` ⊕ δ; later wheel readings
 are chained onto it. The filter then sees a better odometry and keeps its own motion noise.
 """
@@ -29,6 +33,7 @@ from scipy.spatial import cKDTree
 
 from fusion.motion import OdometryMotionModel, increment
 from houghloc.geometry import compose, wrap_scalar
+from houghloc.matching import gate_threshold
 
 # The wheels' noise while they report no motion is zero; this floor (σ = 1 mm, 0.06°) keeps its
 # information finite, and still lets the wheels outweigh a match when the robot stands.
@@ -64,6 +69,9 @@ class ScanOdometryConfig(BaseModel):
     max_correction_xy: float = Field(
         0.5, gt=0, description="m; a match farther from the wheels' increment is not used")
     max_correction_theta_deg: float = Field(20.0, gt=0)
+    robust_quantile: float | None = Field(
+        0.99, gt=0.5, lt=1.0, description="when the wheels and the match disagree beyond this "
+        "χ²(3) quantile of their joint noise, the wheels' noise is scaled up to it (None: never)")
     measured_noise: bool = Field(
         True, description="the filter predicts a matched increment with its fused covariance; "
         "false: with the motion model's noise for the corrected increment")
@@ -167,6 +175,8 @@ class ScanOdometry:
         self._time = -math.inf  # and its time
         floors = (config.floor_xy**2, config.floor_xy**2, math.radians(config.floor_theta_deg)**2)
         self._floor = np.diag(floors)
+        self._robust_limit = (math.inf if config.robust_quantile is None
+                              else gate_threshold(config.robust_quantile, 3))
 
     def on_wheels(self, x: float, y: float, theta: float) -> tuple[float, float, float]:
         """The corrected odometry pose for a wheel reading."""
@@ -179,6 +189,7 @@ class ScanOdometry:
         """The corrected odometry pose at a scan taken at t (the wheels are read at their newest
         reading), or None when the scan cannot be matched; the first scan becomes the
         reference."""
+        points = points[np.isfinite(points).all(axis=1)]
         if self._wheels is None or len(points) < self.config.min_points:
             return None
         if self._points is None:
@@ -222,8 +233,17 @@ class ScanOdometry:
         if (math.hypot(gap[0], gap[1]) > c.max_correction_xy
                 or abs(gap[2]) > math.radians(c.max_correction_theta_deg)):
             return None
-        wheel_info = np.linalg.inv(self.motion.noise(wheel_step) + _STILL_NOISE)
-        scan_info = np.linalg.inv(icp.cov * c.noise_scale + self._floor)
+        wheel_cov = self.motion.noise(wheel_step) + _STILL_NOISE
+        scan_cov = icp.cov * c.noise_scale + self._floor
+        if c.robust_quantile is not None:
+            # the two disagree beyond their joint noise: the wheels slipped or misreport (a good
+            # match does not err by decimetres), so their noise is scaled up until they agree
+            # at the quantile, and the increment follows the match
+            d2 = float(gap @ np.linalg.solve(wheel_cov + scan_cov, gap))
+            if d2 > self._robust_limit:
+                wheel_cov = wheel_cov * (d2 / self._robust_limit)
+        wheel_info = np.linalg.inv(wheel_cov)
+        scan_info = np.linalg.inv(scan_cov)
         cov = np.linalg.inv(wheel_info + scan_info)
         cov = 0.5 * (cov + cov.T)
         return cov @ (wheel_info @ wheel_step + scan_info @ matched), cov
