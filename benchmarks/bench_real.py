@@ -1,6 +1,6 @@
 """Localization on the real logs (Intel lab, Freiburg 079, ACES) end to end, without Rerun.
 
-    python -m benchmarks.bench_real [--only intel|fr079|aces] [--scans N]
+    python -m benchmarks.bench_real [--only intel|fr079|aces] [--scans N] [--set KEY=VALUE …]
     python -m benchmarks.bench_real --build-maps [--only …]   # rebuild configs/maps + pictures
 
 For each dataset: houghloc (odometry + Hough fixes in the EKF) against the GMapping reference
@@ -14,6 +14,9 @@ matter. Intel's .mat has no reference poses: they come from ``intel.gfs.log`` (F
 its start pose is the GMapping map's origin (the robot stands still there for 30 s; composing the
 first FLASER pose back to t = 0 with the raw odometry is 6.7° off: the odometry over-reports the
 first turn).
+
+``--set scan_odometry.enabled=false`` (dotted keys, YAML values; repeatable) overrides settings
+of each dataset's config for the run: how the robustness of a setting is measured.
 
 Skips with a message when ``../shared/data`` is missing.
 """
@@ -285,10 +288,42 @@ def print_table(rows: list[dict]) -> None:
                   f"{sps:>8s} {peer:>7s}")
 
 
+def overridden_config(path: Path, overrides: list[str]):
+    """The dataset's config with ``key.sub=value`` overrides (values parsed as YAML); the path
+    itself when there are none. A malformed override or an invalid result is a ValueError."""
+    if not overrides:
+        return path
+    import yaml
+
+    from fusion.config import LocalizerConfig
+    from houghloc.yaml_io import read_yaml
+
+    raw = read_yaml(path, ValueError, "config") or {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set {item!r}: expected KEY=VALUE, e.g. "
+                             "filter.gate_probability=0.999")
+        node = raw
+        *parents, leaf = key.split(".")
+        for name in parents:
+            node = node.setdefault(name, {})
+            if not isinstance(node, dict):
+                raise ValueError(f"--set {item!r}: {name!r} is not a group of settings")
+        try:
+            node[leaf] = yaml.safe_load(value)
+        except yaml.YAMLError as error:
+            raise ValueError(f"--set {item!r}: the value is not YAML ({error})") from None
+    return LocalizerConfig.from_dict(raw, source=f"{path} with {' '.join(overrides)}")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--only", choices=["intel", "fr079", "aces"], action="append")
     parser.add_argument("--scans", type=int, help="only the first N scans of each log")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a setting of each dataset's config, e.g. "
+                        "ambiguity.local_search_xy=0.75 (dotted key, YAML value; repeatable)")
     parser.add_argument("--build-maps", action="store_true",
                         help="rebuild configs/maps/<name>.yaml and docs/images/map-<name>.png")
     args = parser.parse_args(argv)
@@ -310,8 +345,13 @@ def main(argv: list[str] | None = None) -> int:
         if missing:
             print(f"bench_real: {ds.name} skipped — missing {', '.join(map(str, missing))}")
             continue
+        try:
+            config = overridden_config(ds.config, args.set)
+        except ValueError as error:
+            print(f"bench_real: {error}", file=sys.stderr)
+            return 2
         before = yardstick_seconds()
-        outcome = run(ds, args.scans)
+        outcome = run(ds, args.scans, config)
         peer = 0.5 * (before + yardstick_seconds())
         rows.append(score(outcome) | {"x_peer": outcome.seconds / max(outcome.scans, 1) / peer,
                                       "peer_ms": 1e3 * peer})

@@ -47,3 +47,20 @@ def test_bench_real_on_short_slices() -> None:
     for name in ("intel", "fr079", "aces"):
         assert f"{name}: 40 scans" in out
     assert "× peer" in out
+
+
+def test_bench_real_overrides_settings_of_the_datasets_configs() -> None:
+    from benchmarks.bench_real import overridden_config
+
+    base = REPO / "configs/fr079-laser.yaml"
+    assert overridden_config(base, []) == base
+    config = overridden_config(base, ["scan_odometry.enabled=false",
+                                      "ambiguity.local_search_xy=0.75"])
+    assert not config.scan_odometry.enabled and config.ambiguity.local_search_xy == 0.75
+    assert config.filter.motion.rotation_scale == 0.95  # the rest is the file's
+    with pytest.raises(ValueError, match="expected KEY=VALUE"):
+        overridden_config(base, ["scan_odometry.enabled"])
+    with pytest.raises(ValueError, match="local_serch_xy"):  # a misspelt key is named
+        overridden_config(base, ["ambiguity.local_serch_xy=0.75"])
+    with pytest.raises(ValueError, match="not a group"):
+        overridden_config(base, ["ambiguity.local_search_xy.inner=1"])
