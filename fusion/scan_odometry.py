@@ -13,12 +13,13 @@ Per scan ``k`` (all increments in the robot frame of scan ``k − 1``)::
     δ_s, Q_s   the point-to-line ICP of scan k onto scan k − 1, started at δ_w
     δ = (Q_w⁻¹ + Q_s⁻¹)⁻¹ (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s)                (information-weighted mean)
 
-where Q_w is first scaled by d²/χ²₃(0.99) if d² = (δ_s − δ_w)ᵀ (Q_w + Q_s)⁻¹ (δ_s − δ_w) exceeds
-that quantile: wheels that disagree with a good match beyond their joint noise have slipped or
-misreport, and would otherwise bias every such step toward their error.
-
 and the corrected odometry pose of scan ``k`` is that of scan ``k − 1`` ⊕ δ; later wheel readings
-are chained onto it. The filter then sees a better odometry and keeps its own motion noise.
+are chained onto it. The filter predicts that step with δ's covariance (Q_w⁻¹ + Q_s⁻¹)⁻¹
+(:meth:`fusion.tracker.PoseTracker.correct_odometry`).
+
+Robustly: Q_w is first scaled by d²/χ²₃(0.99) when d² = (δ_s − δ_w)ᵀ (Q_w + Q_s)⁻¹ (δ_s − δ_w)
+exceeds that quantile. Wheels that disagree with a good match beyond their joint noise have
+slipped or misreport, and would otherwise bias every such step toward their error.
 """
 
 from __future__ import annotations
@@ -115,9 +116,9 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
     x = np.array(guess, dtype=float)
     shrink = max(1.0, 0.6 * config.iterations)
     for iteration in range(config.iterations):
+        progress = min(1.0, iteration / shrink)
         reach = config.max_pair_distance + (config.final_pair_distance
-                                            - config.max_pair_distance) * min(1.0,
-                                                                             iteration / shrink)
+                                            - config.max_pair_distance) * progress
         c, s = math.cos(x[2]), math.sin(x[2])
         moved = current @ np.array([[c, s], [-s, c]]) + x[:2]
         distance, nearest = tree.query(moved, distance_upper_bound=reach)
