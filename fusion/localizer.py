@@ -26,6 +26,7 @@ from fusion.tracker import PoseTracker
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points
+from houghloc.localize import clean_points
 
 
 @dataclass(frozen=True, slots=True)
@@ -148,8 +149,8 @@ class Localizer:
         if self.stats.scans == 0:  # the recording starts with the state and why
             self.logger.log_state(t, self.manager.state.value, self._start_reason)
         self.stats.scans += 1
-        points = np.asarray(points, dtype=float).reshape(-1, 2)
-        points = _to_base(points[np.isfinite(points).all(axis=1)], cfg)  # NaN/inf: no return
+        # NaN/inf points are no returns; every stage below (scan odometry too) gets finite ones
+        points = _to_base(clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0], cfg)
         if self.scan_odometry is not None and sensor == self.scan_odometry.config.sensor:
             self._correct_odometry(t, points)
         if self.manager.state is not State.TRACKING:
@@ -198,8 +199,8 @@ class Localizer:
         t0 = perf_counter()
         correction = self.scan_odometry.match(t, points)
         if correction is not None:
-            step_cov = correction.step_cov if self.config.scan_odometry.measured_noise else None
-            if self.tracker.correct_odometry(t, correction.pose, correction.since, step_cov):
+            if self.tracker.correct_odometry(t, correction.pose, correction.since,
+                                             correction.step_cov):
                 self.scan_odometry.commit(correction)
                 self.logger.log_odometry(t, correction.pose)  # the odometry path shows it
             else:

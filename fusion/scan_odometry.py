@@ -73,9 +73,6 @@ class ScanOdometryConfig(BaseModel):
     robust_quantile: float | None = Field(
         0.99, gt=0.5, lt=1.0, description="when the wheels and the match disagree beyond this "
         "χ²(3) quantile of their joint noise, the wheels' noise is scaled up to it (None: never)")
-    measured_noise: bool = Field(
-        True, description="the filter predicts a matched increment with its fused covariance; "
-        "false: with the motion model's noise for the corrected increment")
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,13 +181,12 @@ class ScanOdometry:
         self._wheels = np.array((x, y, theta), dtype=float)
         if self._anchor is None:
             self._anchor_wheels, self._anchor = self._wheels, self._wheels.copy()
-        return tuple(compose(self._anchor, increment(self._anchor_wheels, self._wheels)).tolist())
+        return tuple(self._corrected_wheels().tolist())
 
     def match(self, t: float, points: NDArray[np.float64]) -> Correction | None:
         """The corrected odometry pose at a scan taken at t (the wheels are read at their newest
         reading), or None when the scan cannot be matched; the first scan becomes the
-        reference."""
-        points = points[np.isfinite(points).all(axis=1)]
+        reference. ``points``: finite, robot frame (the Localizer has cleaned them)."""
         if self._wheels is None or len(points) < self.config.min_points:
             return None
         if self._points is None:
@@ -216,8 +212,12 @@ class ScanOdometry:
     def skip(self, t: float, points: NDArray[np.float64]) -> None:
         """The scan was not corrected: it becomes the reference at its uncorrected pose (an older
         reference would drift out of view)."""
-        self._anchor = compose(self._anchor, increment(self._anchor_wheels, self._wheels))
+        self._anchor = self._corrected_wheels()
         self._points, self._anchor_wheels, self._time = points, self._wheels, t
+
+    def _corrected_wheels(self) -> NDArray[np.float64]:
+        """The newest wheel reading in the corrected frame: chained onto the reference scan."""
+        return compose(self._anchor, increment(self._anchor_wheels, self._wheels))
 
     def _fuse(self, wheel_step: NDArray[np.float64],
               icp: IcpResult | None
