@@ -77,11 +77,10 @@ def build_real_map(name: str, out_yaml: Path, png: Path | None = None):
     to ``out_yaml`` with an attribution header, and its picture to ``png``."""
     import yaml
 
-    from fusion.mapping import extract_segments, occupancy_from_log, render_map_png
+    from fusion.mapping import read_reference_scans, render_map_png, segment_map_from_scans
 
     source, recorder = MAP_SOURCES[name]
-    grid = occupancy_from_log(DATA / source)
-    segment_map = extract_segments(grid, name=name)
+    grid, segment_map = segment_map_from_scans(read_reference_scans(DATA / source), name=name)
     header = (f"# Segment map of the {name} building, built by `python -m benchmarks.bench_real "
               f"--build-maps`\n# (fusion.mapping, builder defaults) from the corrected log in "
               f"../shared/data (GMapping poses).\n# Data: Kümmerle et al. 2009 via the Radish "

@@ -20,6 +20,7 @@ from fusion.mapping import (
     occupancy_from_log,
     point_segment_distance,
     read_reference_scans,
+    refit_to_endpoints,
     scan_endpoints,
 )
 from houghloc import SegmentMap
@@ -152,6 +153,60 @@ def test_near_duplicate_lines_of_one_face_are_merged_onto_one_line() -> None:
     single = _merge_duplicates(_lines(((0.0, 0.0), (1.0, 0.0))), np.array([up]),
                                math.radians(6.0), 0.15, 2.0, 0.25)
     assert len(single) == 1
+
+
+def _wall_endpoints(a: np.ndarray, b: np.ndarray, n: int, noise: float,
+                    rng: np.random.Generator) -> np.ndarray:
+    t = rng.uniform(0.0, 1.0, n)[:, None]
+    return a + t * (b - a) + rng.normal(0.0, noise, (n, 2))
+
+
+def _line_angle_offset(segment_map: SegmentMap, i: int) -> tuple[float, float]:
+    """Direction (degrees, mod 180) and signed offset of the line of segment i from the origin."""
+    a, b = segment_map.starts[i], segment_map.ends[i]
+    d = (b - a) / np.linalg.norm(b - a)
+    return math.degrees(math.atan2(d[1], d[0])) % 180.0, float(a[0] * -d[1] + a[1] * d[0])
+
+
+def test_refit_to_endpoints_moves_lines_onto_the_seen_faces() -> None:
+    rng = np.random.default_rng(4)
+    # The true faces: y = 1 (a wall with a doorway: two pieces of one line) and x = 3.
+    endpoints = np.vstack((
+        _wall_endpoints(np.array([0.0, 1.0]), np.array([2.0, 1.0]), 800, 0.01, rng),
+        _wall_endpoints(np.array([2.9, 1.0]), np.array([6.0, 1.0]), 1200, 0.01, rng),
+        _wall_endpoints(np.array([3.0, 1.5]), np.array([3.0, 5.0]), 1500, 0.01, rng),
+        # clutter 12 cm in front of the x = 3 face, along part of it
+        _wall_endpoints(np.array([2.88, 2.0]), np.array([2.88, 3.0]), 150, 0.01, rng),
+    ))
+    tilt = math.tan(math.radians(3.0))
+    grid_map = SegmentMap(  # as a grid fit leaves them: 4 cm off, turned by 3°
+        np.array([[0.0, 1.04], [2.9, 1.04 + 2.9 * tilt], [2.96, 1.5], [8.0, 8.0]]),
+        np.array([[2.0, 1.04 + 2.0 * tilt], [6.0, 1.04 + 6.0 * tilt], [2.96 + 3.5 * tilt, 5.0],
+                  [9.0, 8.0]]),
+        kinds=["wall"] * 4)
+    assert grid_map.n_lines == 3
+    m = refit_to_endpoints(grid_map, endpoints)
+    assert len(m) == 4 and m.n_lines == 3  # the doorway's two pieces still share one line
+    assert m.ids == ["w0", "w1", "w2", "w3"] and np.all(np.diff(m.lengths) <= 1e-12)
+    for i in range(len(m)):
+        angle, offset = _line_angle_offset(m, i)
+        mid = 0.5 * (m.starts[i] + m.ends[i])
+        if mid[1] > 7.0:  # no endpoint supports it: it stays where it was
+            assert np.allclose(m.starts[i], [8.0, 8.0]) and np.allclose(m.ends[i], [9.0, 8.0])
+        elif abs(angle - 90.0) < 10.0:  # the x = 3 face, despite the clutter in front of it
+            assert abs(angle - 90.0) < 0.2 and abs(abs(offset) - 3.0) < 0.005
+        else:  # y = 1
+            assert min(angle, 180.0 - angle) < 0.2 and abs(abs(offset) - 1.0) < 0.005
+
+
+def test_refit_to_endpoints_will_not_turn_a_line_onto_other_structure() -> None:
+    rng = np.random.default_rng(5)
+    # the only endpoints near the segment lie on a line 8° from it: they are something else
+    endpoints = _wall_endpoints(np.array([0.0, 0.0]), np.array([3.0, 3.0 * math.tan(
+        math.radians(8.0))]), 2000, 0.005, rng)
+    before = SegmentMap(np.array([[0.0, 0.2]]), np.array([[3.0, 0.2]]), kinds=["wall"])
+    after = refit_to_endpoints(before, endpoints)
+    assert np.allclose(after.starts, before.starts) and np.allclose(after.ends, before.ends)
 
 
 def test_empty_grid_is_an_error() -> None:
