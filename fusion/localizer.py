@@ -179,7 +179,8 @@ class Localizer:
             t2 = perf_counter()
             self.stats.seconds["update"] += t2 - t1
             decision = self.manager.local_search(t, guess, points, fix, kinds,
-                                                 max(guess_fit, fix_fit or 0.0), cfg.hough)
+                                                 max(guess_fit, fix_fit or 0.0), cfg.hough,
+                                                 self.tracker.odometry_at(t))
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)
             if decision.reset_pose is not None and self.tracker.reset(decision.reset_pose,

@@ -236,6 +236,40 @@ def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
     assert error > 0.1
 
 
+@pytest.mark.parametrize("reach", [2.0, None])
+def test_local_search_keeps_within_reach_of_the_odometry(office, reach):
+    """Right after accepted fixes the scans come from 0.6 m further along while the odometry
+    reports the robot standing still: no slip explains that. The re-search finds the pose
+    (with the reach unlimited it re-initialises there) but refuses it as out of reach of the
+    motion since the last fix (0.25 m + 2 × 0 m)."""
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+
+    ambiguity = {"hold_fit_ratio": 0.9, "max_scans_without_fix": 50, "local_search_xy": 1.0,
+                 "local_reach_per_metre": reach}
+    config = LocalizerConfig.from_dict({"sensors": {"laser": {"max_range": 10.0}},
+                                        "ambiguity": ambiguity})
+    start = np.array([5.0, 6.0, 0.3])
+    loc = Localizer(office, config, initial_pose=start)
+    rng = np.random.default_rng(1)
+    statuses = []
+    for k in range(12):
+        truth = start + (np.array([0.6 * math.cos(0.3), 0.6 * math.sin(0.3), 0.0])
+                         if k >= 8 else 0.0)
+        loc.on_odometry(0.2 * k, *start)
+        scan = laser_scan(office, truth, rng, LaserConfig(max_range=10.0))
+        statuses.append(loc.on_scan(0.2 * k, scan.ranges, scan.angles).status)
+    assert statuses[:8] == ["accepted"] * 8
+    searches = loc.manager.counts["local_searches"]
+    if reach is None:
+        assert statuses[8] == "re-searched"
+        assert math.hypot(*(loc.pose - truth)[:2]) < 0.05
+    else:
+        assert searches >= 4 and "re-searched" not in statuses
+        assert loc.manager.counts["local_out_of_reach"] == searches
+        assert math.hypot(*(loc.pose - start)[:2]) < 0.05
+
+
 def test_local_search_is_wanted_when_the_scan_fits_worse_than_usual(office):
     """At the guess when no fix was used; at the fix when one was: two lines matched to the
     wrong walls after a slip pass the gates and still leave the scan off the walls."""
