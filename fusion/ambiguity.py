@@ -287,7 +287,7 @@ class AmbiguityManager:
 
     def local_search(self, t: float, guess: NDArray, points: NDArray, fix: ScanCorrection,
                      kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig,
-                     odom: NDArray | None = None) -> Decision:
+                     odom: NDArray | None) -> Decision:
         """Match one scan's lines (those of the tracking ``fix`` from the same ``points``) to
         the map near ``guess`` (``local_search_xy``, ``local_search_theta_deg``); the pose found
         re-initialises the filter when it clearly fits the scan better than the guess and about
@@ -345,7 +345,8 @@ class AmbiguityManager:
 
     def _within_reach(self, pose: NDArray, guess: NDArray, odom: NDArray | None) -> bool:
         """Is the re-search's ``pose`` within ``local_reach_base`` + ``local_reach_per_metre`` ×
-        the odometry's displacement since the last accepted fix of the ``guess``?"""
+        the odometry's displacement since the last accepted fix of the ``guess``? Without
+        odometry (None) or an accepted fix there is no motion to bound it by."""
         per_metre = self.config.local_reach_per_metre
         if per_metre is None or odom is None or self._last_trusted is None:
             return True

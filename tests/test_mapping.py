@@ -209,6 +209,15 @@ def test_refit_to_endpoints_will_not_turn_a_line_onto_other_structure() -> None:
     assert np.allclose(after.starts, before.starts) and np.allclose(after.ends, before.ends)
 
 
+def test_refit_to_endpoints_refuses_painted_lines() -> None:
+    """A laser returns nothing from a painted line: refitting one to endpoints would move it
+    onto whatever wall is near, so such a map is refused by name."""
+    painted = SegmentMap(np.array([[0.0, 0.0]]), np.array([[3.0, 0.0]]), kinds=["line"],
+                         name="pitch")
+    with pytest.raises(ValueError, match=r"'pitch'.*only a map of walls"):
+        refit_to_endpoints(painted, np.zeros((50, 2)))
+
+
 def test_empty_grid_is_an_error() -> None:
     empty = OccupancyGrid.from_masks(np.zeros((20, 20), bool), np.ones((20, 20), bool), RES)
     with pytest.raises(ValueError, match="occupied"):

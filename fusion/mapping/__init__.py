@@ -45,12 +45,10 @@ grid, metre axes). :func:`endpoint_coverage` scores a map against scan endpoints
 from __future__ import annotations
 
 import io
-import math
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial import cKDTree
 
 from fusion.io.files import atomic_write_bytes, atomic_write_text
 from fusion.mapping.grid import (
@@ -63,7 +61,7 @@ from fusion.mapping.grid import (
     scan_endpoints,
 )
 from fusion.mapping.ros_map import load_ros_map
-from fusion.mapping.segments import extract_segments, refit_to_endpoints
+from fusion.mapping.segments import extract_segments, nearest_segment, refit_to_endpoints
 from houghloc.segment_map import SegmentMap
 
 __all__ = [
@@ -181,21 +179,11 @@ def point_segment_distance(
     segment_map: SegmentMap, points: NDArray[np.float64], max_distance: float,
     spacing: float = 0.01,
 ) -> NDArray[np.float64]:
-    """Distance from each point to its nearest map segment, exact up to ``max_distance`` (inf
-    beyond). The segments are sampled every ``spacing`` into a k-d tree: the nearest sample
-    names a segment, whose exact distance is returned — cost independent of the map's size."""
-    length = segment_map.lengths
-    count = np.ceil(length / spacing).astype(np.intp) + 1
-    seg = np.repeat(np.arange(len(segment_map)), count)
-    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
-    t = k / (count[seg] - 1)
+    """Distance from each point to its nearest map segment (:func:`nearest_segment`, sampled
+    every ``spacing``), exact up to ``max_distance`` (inf beyond)."""
     starts, ends = segment_map.starts, segment_map.ends
-    samples = starts[seg] + t[:, None] * (ends - starts)[seg]
-    bound = math.hypot(max_distance, spacing)
-    near, index = cKDTree(samples).query(points, distance_upper_bound=bound)
+    found, s = nearest_segment(starts, ends, points, max_distance, spacing)
     out = np.full(len(points), np.inf)
-    found = np.isfinite(near)
-    s = seg[index[found]]
     a, d = starts[s], ends[s] - starts[s]
     u = np.clip(np.einsum("ij,ij->i", points[found] - a, d) / np.einsum("ij,ij->i", d, d), 0, 1)
     exact = np.linalg.norm(points[found] - (a + u[:, None] * d), axis=1)

@@ -92,10 +92,15 @@ def extract_segments(
                                  bridge_gap)
     if len(segments) == 0:
         raise ValueError(f"no wall segment of at least {min_length} m found in the grid")
-    order = np.argsort(-segments.length, kind="stable")
-    starts, ends = segments.starts[order], segments.ends[order]
-    ids = [f"w{i}" for i in range(len(order))]
-    return SegmentMap(starts, ends, kinds=["wall"] * len(order), ids=ids, name=name)
+    return _walls_longest_first(segments.starts, segments.ends, name)
+
+
+def _walls_longest_first(starts: NDArray[np.float64], ends: NDArray[np.float64],
+                         name: str) -> SegmentMap:
+    """The wall map of these segments, longest first, with ids w0, w1, ... in that order."""
+    order = np.argsort(-np.linalg.norm(ends - starts, axis=1), kind="stable")
+    return SegmentMap(starts[order], ends[order], kinds=["wall"] * len(order),
+                      ids=[f"w{i}" for i in range(len(order))], name=name)
 
 
 def _detect_candidates(grid: OccupancyGrid) -> _Lines:
@@ -536,7 +541,7 @@ def refit_to_endpoints(
     min_points: int = 20,
     max_turn: float = math.radians(5.0),
 ) -> SegmentMap:
-    """Stage 7, for maps built from scans: every wall line refitted to the scan endpoints.
+    """Stage 7, for wall maps built from scans: every line refitted to the scan endpoints.
 
     The grid's cells are 5 cm wide and a wall's cells are smeared by furniture standing against
     it, so a line fitted to cells can sit a few centimetres and degrees off the face the laser
@@ -548,6 +553,9 @@ def refit_to_endpoints(
     ``min_points`` endpoints support it or a pass would turn it by more than ``max_turn`` (the
     endpoints then belong to something else). Ids are renumbered longest first.
     """
+    if any(kind != "wall" for kind in segment_map.kinds):
+        raise ValueError(f"map {segment_map.name!r}: only a map of walls can be refitted to "
+                         "scan endpoints (painted lines return none)")
     starts, ends = segment_map.starts.copy(), segment_map.ends.copy()
     line_of = segment_map.line_of_segment
     n_lines = segment_map.n_lines
@@ -564,28 +572,39 @@ def refit_to_endpoints(
         for ends_ in (starts, ends):  # orthogonal projection onto the refitted line
             along = np.einsum("ij,ij->i", ends_[refit] - c, d)
             ends_[refit] = c + along[:, None] * d
-    order = np.argsort(-np.linalg.norm(ends - starts, axis=1), kind="stable")
-    return SegmentMap(starts[order], ends[order], kinds=["wall"] * len(order),
-                      ids=[f"w{i}" for i in range(len(order))], name=segment_map.name)
+    return _walls_longest_first(starts, ends, segment_map.name)
 
 
-def _endpoints_near_segments(
-    starts: NDArray[np.float64], ends: NDArray[np.float64], endpoints: NDArray[np.float64],
-    band: float, spacing: float = 0.02,
-) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
-    """The endpoints within ``band`` across their nearest segment and within its extent, with
-    that segment's index. Segments are sampled every ``spacing`` into a k-d tree (one query for
-    all endpoints); the nearest sample names the segment, whose exact offset is then checked."""
+def nearest_segment(
+    starts: NDArray[np.float64], ends: NDArray[np.float64], points: NDArray[np.float64],
+    max_distance: float, spacing: float = 0.01,
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The points (indices) with a segment within about ``max_distance``, and that nearest
+    segment's index for each. The segments are sampled every ``spacing`` into a k-d tree, one
+    query for all points: the nearest sample names the segment, whatever the map's size. Every
+    point within ``max_distance`` of a segment is found; callers check the exact distance."""
     length = np.linalg.norm(ends - starts, axis=1)
     count = np.ceil(length / spacing).astype(np.intp) + 1
     sample_of = np.repeat(np.arange(len(length)), count)
     k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
     samples = starts[sample_of] + (k / (count[sample_of] - 1))[:, None] * (ends - starts)[sample_of]
-    dist, index = cKDTree(samples).query(endpoints, distance_upper_bound=band + spacing)
-    found = np.flatnonzero(np.isfinite(dist))
-    segment, xy = sample_of[index[found]], endpoints[found]
+    near, index = cKDTree(samples).query(points, distance_upper_bound=math.hypot(max_distance,
+                                                                                 spacing))
+    found = np.flatnonzero(np.isfinite(near))
+    return found, sample_of[index[found]]
+
+
+def _endpoints_near_segments(
+    starts: NDArray[np.float64], ends: NDArray[np.float64], endpoints: NDArray[np.float64],
+    band: float,
+) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+    """The endpoints within ``band`` across their nearest segment and within its extent, with
+    that segment's index."""
+    found, segment = nearest_segment(starts, ends, endpoints, band, spacing=0.02)
+    xy = endpoints[found]
     rel, span = xy - starts[segment], ends[segment] - starts[segment]
-    along = np.einsum("ij,ij->i", rel, span) / length[segment] ** 2
-    across = np.abs(rel[:, 0] * span[:, 1] - rel[:, 1] * span[:, 0]) / length[segment]
+    length = np.linalg.norm(span, axis=1)
+    along = np.einsum("ij,ij->i", rel, span) / length**2
+    across = np.abs(rel[:, 0] * span[:, 1] - rel[:, 1] * span[:, 0]) / length
     keep = (along >= 0.0) & (along <= 1.0) & (across <= band)
     return segment[keep], xy[keep]
