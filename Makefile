@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup demo test test-all bench lint clean
+.PHONY: setup demo test test-all bench bench-real lint clean
 
 setup: $(STAMP)
 
@@ -12,7 +12,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,peers]'
 	touch $(STAMP)
 
 demo: setup
@@ -26,6 +26,10 @@ test-all: setup
 
 bench: setup
 	$(BIN)/python -m benchmarks.run_all
+
+# the real-world benchmark: six buildings × protocols × houghloc and its peers, on Dask
+bench-real: setup
+	$(BIN)/houghloc sweep --spec benchmarks/real.yaml --out runs/bench-real
 
 lint: setup
 	$(BIN)/ruff check houghloc fusion tests benchmarks notebooks

@@ -5,6 +5,7 @@
     houghloc sim --scenario NAME --out D [--seed S] [--duration SEC]
     houghloc eval --est EST.tum --gt GT.tum [--relations FILE --time-offset S]
     houghloc map build (--log CORRECTED_LOG | --grid ROS_MAP.yaml) --out MAP.yaml
+    houghloc sweep --spec SPEC.yaml --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
 """
 
 from __future__ import annotations
@@ -46,11 +47,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _describe(exc: Exception) -> str:
+    from fusion.bench.spec import SpecError
     from fusion.config import ConfigError
     from fusion.io.errors import LogError
     from houghloc.segment_map import MapError
 
-    if isinstance(exc, MapError | ConfigError | LogError | CliError | ValueError):
+    if isinstance(exc, MapError | ConfigError | LogError | CliError | SpecError | ValueError):
         return str(exc)
     if isinstance(exc, FileNotFoundError | PermissionError | IsADirectoryError):
         return f"{exc.strerror}: {exc.filename}"
@@ -114,6 +116,24 @@ def build_parser() -> argparse.ArgumentParser:
                     help="SE(2)-align the estimate first (for paths in their own frame)")
     ev.add_argument("--max-dt", type=float, default=0.02, help="association tolerance (s)")
     ev.set_defaults(func=cmd_eval)
+
+    sw = sub.add_parser(
+        "sweep", help="benchmark runs × settings × methods × protocols on Dask",
+        description="Run every (run, setting, method, protocol) of a spec as one Dask task and "
+        "write DIR/results.csv (a row per task, appended as each finishes), DIR/summary.md, "
+        "DIR/summary.png and DIR/trajectories/. A re-run with the same DIR skips the tasks "
+        "already there. Methods: houghloc, odometry, icp, amcl, amcl-tuned (the peers need "
+        "pip install 'houghloc[peers]'). Protocols: same-run, held-out-map, global-start.")
+    sw.add_argument("--spec", required=True, type=Path, help="the sweep spec (YAML)")
+    sw.add_argument("--out", required=True, type=Path, help="output directory")
+    sw.add_argument("--scheduler", metavar="tcp://HOST:PORT",
+                    help="an existing Dask scheduler (default: a LocalCluster on this machine)")
+    sw.add_argument("--workers", type=int, metavar="N",
+                    help="LocalCluster worker processes (default: one per core)")
+    sw.add_argument("--retry-errors", action="store_true",
+                    help="run again the tasks whose earlier row is an error")
+    sw.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sw.set_defaults(func=cmd_sweep)
 
     mp = sub.add_parser("map", help="segment maps").add_subparsers(dest="map_command",
                                                                    required=True)
@@ -263,6 +283,21 @@ def cmd_eval(args: argparse.Namespace) -> int:
         mean, std = (math.radians(d.get(k, float("nan"))) for k in
                      ("rotation_mean_deg", "rotation_std_deg"))
         print(f"  rotational     mean {mean:.4f} rad   std {std:.4f} rad")
+    return 0
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from fusion.bench import load_spec, run_sweep
+
+    if args.workers is not None and args.workers < 1:
+        raise CliError("--workers must be at least 1")
+    spec = load_spec(args.spec)
+    outcome = run_sweep(spec, args.out, scheduler=args.scheduler, workers=args.workers,
+                        progress=False if args.no_progress else None,
+                        retry_errors=args.retry_errors)
+    print(f"{outcome.ran} tasks run, {outcome.skipped} already in {args.out}, "
+          f"{outcome.failed} failed; wrote {args.out / 'results.csv'}, "
+          f"{args.out / 'summary.md'}, {args.out / 'summary.png'}")
     return 0
 
 

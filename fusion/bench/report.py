@@ -1,0 +1,139 @@
+"""``summary.md`` and ``summary.png`` from the rows of ``results.csv``.
+
+One table per protocol (log × method: ATE RMSE / max, lost % over all poses and over covered
+ones, relation error where the run has relations, CPU ms per scan), one for global starts (time
+until right and staying right), the failed tasks with their errors, and a plot of lost % and ATE
+per run and method.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from fusion.bench.data import COVERED_DISTANCE, COVERED_SHARE
+from fusion.bench.spec import Protocol
+from fusion.bench.task import LOST_HEADING_DEG, LOST_POSITION
+
+
+def _f(row: dict[str, Any], key: str) -> float:
+    try:
+        return float(row.get(key, "") or "nan")
+    except ValueError:
+        return math.nan
+
+
+def _label(row: dict[str, Any]) -> str:
+    settings = row.get("settings", "{}")
+    return row["method"] if settings in ("", "{}") else f"{row['method']} {settings}"
+
+
+def _length(v: float) -> str:
+    if not math.isfinite(v):
+        return "–"
+    return f"{100 * v:.1f} cm" if v < 1 else f"{v:.2f} m"
+
+
+def _pct(v: float) -> str:
+    return "–" if not math.isfinite(v) else f"{100 * v:.1f} %"
+
+
+def summary_markdown(rows: Sequence[dict[str, Any]]) -> str:
+    ok = [r for r in rows if r.get("status") == "ok"]
+    out = io.StringIO()
+    out.write("# Benchmark summary\n\n")
+    out.write(f"Lost: more than {LOST_POSITION} m or {LOST_HEADING_DEG:g}° from the reference. "
+              f"Covered: at least {COVERED_SHARE:.0%} of the scan's points, at the reference "
+              f"pose, within {COVERED_DISTANCE * 100:.0f} cm of the points the map was built "
+              "from. CPU: process time per scan, map building and log reading excluded.\n")
+    for protocol in (Protocol.SAME_RUN, Protocol.HELD_OUT_MAP):
+        these = [r for r in ok if r["protocol"] == protocol.value]
+        if not these:
+            continue
+        relations = any(math.isfinite(_f(r, "rel_trans_m")) for r in these)
+        out.write(f"\n## {protocol.value}\n\n")
+        head = ["log", "method", "scans", "ATE RMSE", "ATE max", "lost", "lost (covered)",
+                "covered"]
+        head += ["relations (trans, rot)"] if relations else []
+        head += ["CPU ms/scan"]
+        out.write("| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n")
+        for r in sorted(these, key=lambda r: (r["run"], _label(r))):
+            cells = [r["run"], _label(r), r["scans"], _length(_f(r, "ate_rmse_m")),
+                     _length(_f(r, "ate_max_m")), _pct(_f(r, "lost_frac")),
+                     _pct(_f(r, "lost_covered_frac")), _pct(_f(r, "covered_frac"))]
+            if relations:
+                tr, rot = _f(r, "rel_trans_m"), _f(r, "rel_rot_rad")
+                cells.append("–" if not math.isfinite(tr) else
+                             f"{_length(tr)}, {rot:.3f} rad")
+            cells.append(f"{_f(r, 'cpu_ms_per_scan'):.2f}")
+            out.write("| " + " | ".join(str(c) for c in cells) + " |\n")
+    starts = [r for r in ok if r["protocol"] == Protocol.GLOBAL_START.value]
+    if starts:
+        out.write("\n## global-start (same-run map, no initial pose)\n\n")
+        out.write("| log | method | right and staying right after | lost | CPU ms/scan |\n"
+                  "|---|---|---|---|---|\n")
+        for r in sorted(starts, key=lambda r: (r["run"], _label(r))):
+            t = _f(r, "global_time_s")
+            when = "never" if not math.isfinite(t) else f"{t:.1f} s"
+            out.write(f"| {r['run']} | {_label(r)} | {when} | {_pct(_f(r, 'lost_frac'))} | "
+                      f"{_f(r, 'cpu_ms_per_scan'):.2f} |\n")
+    failed = [r for r in rows if r.get("status") != "ok"]
+    if failed:
+        out.write("\n## Failed tasks\n\n| log | method | protocol | error |\n|---|---|---|---|\n")
+        for r in failed:
+            error = str(r.get("error", "")).replace("|", "\\|").replace("\n", " ")
+            out.write(f"| {r['run']} | {_label(r)} | {r['protocol']} | {error} |\n")
+    return out.getvalue()
+
+
+def plot(rows: Sequence[dict[str, Any]], path: Path) -> Path | None:
+    """Lost % and ATE RMSE per run and method, one row of panels per protocol."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from fusion.io.files import atomic_write_bytes
+
+    ok = [r for r in rows if r.get("status") == "ok"
+          and r["protocol"] != Protocol.GLOBAL_START.value]
+    protocols = [p.value for p in (Protocol.SAME_RUN, Protocol.HELD_OUT_MAP)
+                 if any(r["protocol"] == p.value for r in ok)]
+    if not protocols:
+        return None
+    runs = sorted({r["run"] for r in ok})
+    labels = sorted({_label(r) for r in ok})
+    fig = Figure(figsize=(max(8.0, 1.6 * len(runs) + 3), 3.6 * len(protocols)))
+    FigureCanvasAgg(fig)
+    width = 0.8 / len(labels)
+    for i, protocol in enumerate(protocols):
+        for j, (key, title, scale) in enumerate((("lost_frac", "lost [%]", 100.0),
+                                                 ("ate_rmse_m", "ATE RMSE [m]", 1.0))):
+            ax = fig.add_subplot(len(protocols), 2, 2 * i + j + 1)
+            for k, label in enumerate(labels):
+                values = []
+                for run in runs:
+                    match = [r for r in ok if r["protocol"] == protocol and r["run"] == run
+                             and _label(r) == label]
+                    values.append(scale * _f(match[0], key) if match else math.nan)
+                ax.bar([x + (k - (len(labels) - 1) / 2) * width for x in range(len(runs))],
+                       values, width, label=label)
+            ax.set_xticks(range(len(runs)), runs, rotation=20)
+            ax.set_title(f"{protocol}: {title}")
+            if key == "ate_rmse_m":
+                ax.set_yscale("log")
+            ax.grid(True, axis="y", linewidth=0.3)
+            if i == 0 and j == 0:
+                ax.legend(fontsize=7)
+    fig.tight_layout()
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    return atomic_write_bytes(path, buffer.getvalue())
+
+
+def write_report(rows: Sequence[dict[str, Any]], out: Path) -> None:
+    from fusion.io import atomic_write_text
+
+    atomic_write_text(out / "summary.md", summary_markdown(rows))
+    plot(rows, out / "summary.png")

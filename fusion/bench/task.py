@@ -1,0 +1,152 @@
+"""One benchmark task — a (run, setting, method, protocol) — and its row of ``results.csv``.
+
+:func:`run_task` never raises: a method that fails is a row with ``status: error`` and the
+message, so the other tasks of a sweep go on.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import traceback
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fusion.bench.data import Piece, RunData, covered
+from fusion.bench.methods import Localized, MissingPeer, localize, supports
+from fusion.bench.spec import Method, Protocol, RunSpec, apply_settings, settings_label
+from fusion.evaluation import ATE, LostFraction, RelationError, Trajectory
+
+LOST_POSITION = 0.3
+"""m: a pose farther than this from the reference is lost (as is one off by LOST_HEADING_DEG)."""
+LOST_HEADING_DEG = 5.0
+
+COLUMNS = ("task_id", "run", "method", "protocol", "settings", "scans", "ate_rmse_m",
+           "ate_max_m", "heading_rmse_deg", "lost_frac", "covered_frac", "lost_covered_frac",
+           "rel_trans_m", "rel_rot_rad", "global_time_s", "cpu_ms_per_scan", "status", "error")
+"""The columns of ``results.csv``, in order."""
+
+
+@dataclass(frozen=True)
+class Task:
+    run: RunSpec
+    method: Method
+    protocol: Protocol
+    settings: dict[str, Any] = field(default_factory=dict)
+    max_dt: float = 0.006
+
+    @property
+    def key(self) -> str:
+        """A hash of everything that decides the task's result: a re-run skips it."""
+        doc = {"run": self.run.model_dump(mode="json"), "method": self.method.value,
+               "protocol": self.protocol.value, "settings": settings_label(self.settings),
+               "max_dt": self.max_dt}
+        return hashlib.sha1(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
+
+    def label(self) -> str:
+        return f"{self.run.name} {self.method.value} {self.protocol.value} " \
+               f"{settings_label(self.settings)}"
+
+
+@dataclass
+class TaskResult:
+    row: dict[str, Any]
+    trajectory: Trajectory | None = None
+
+
+def run_task(task: Task) -> TaskResult:
+    """Localize and score one task; every failure becomes an error row."""
+    row: dict[str, Any] = {c: "" for c in COLUMNS}
+    row.update(task_id=task.key, run=task.run.name, method=task.method.value,
+               protocol=task.protocol.value, settings=settings_label(task.settings))
+    try:
+        trajectory = _run(task, row)
+    except MissingPeer as error:
+        row.update(status="error", error=str(error))
+        return TaskResult(row)
+    except Exception as error:  # the row says what went wrong; the sweep goes on
+        where = traceback.extract_tb(error.__traceback__)[-1]
+        row.update(status="error", error=f"{type(error).__name__}: {error} "
+                   f"({where.filename.rsplit('/', 1)[-1]}:{where.lineno})")
+        return TaskResult(row)
+    row["status"] = "ok"
+    return TaskResult(row, trajectory)
+
+
+def _run(task: Task, row: dict[str, Any]) -> Trajectory:
+    config = apply_settings(task.run.config, task.settings)
+    data = RunData.load(task.run, task.max_dt)
+    pieces = data.pieces(task.protocol)
+    global_start = task.protocol is Protocol.GLOBAL_START
+    if not supports(task.method, global_start):
+        raise ValueError(f"{task.method.value} cannot start without a pose")
+    done = [localize(task.method, piece, config) for piece in pieces]
+    trajectory = Trajectory(np.concatenate([d.trajectory.t for d in done]),
+                            np.concatenate([d.trajectory.poses for d in done]))
+    row.update(score(trajectory, data, pieces, done, task.max_dt, global_start))
+    return trajectory
+
+
+def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list[Localized],
+          max_dt: float, global_start: bool) -> dict[str, Any]:
+    """ATE, lost fraction over all poses and over covered ones, relation errors, CPU time and,
+    for a global start, the time until right and staying right."""
+    scans = sum(len(d.trajectory) for d in done)
+    ate = ATE(max_dt=max_dt).compute(trajectory, data.reference)
+    lost = LostFraction(LOST_POSITION, LOST_HEADING_DEG, max_dt).from_ate(ate)
+    cover = _covered(pieces, data, max_dt)
+    lost_covered = LostFraction(LOST_POSITION, LOST_HEADING_DEG, max_dt).compute(trajectory,
+                                                                                 cover)
+    position = ate.position
+    out: dict[str, Any] = {
+        "scans": scans,
+        "ate_rmse_m": position["rmse"],
+        "ate_max_m": position["max"],
+        "heading_rmse_deg": ate.heading_deg["rmse"],
+        "lost_frac": lost.fraction,
+        "covered_frac": len(cover) / max(len(ate.position_errors), 1),
+        "lost_covered_frac": lost_covered.fraction,
+        "cpu_ms_per_scan": 1e3 * sum(d.cpu_seconds for d in done) / max(scans, 1),
+    }
+    if data.spec.relations is not None:
+        out.update(_relations(trajectory, data))
+    if global_start:
+        out["global_time_s"] = time_to_right(ate, trajectory, lost.lost)
+    return out
+
+
+def _covered(pieces: list[Piece], data: RunData, max_dt: float) -> Trajectory:
+    parts = [covered(p.scans, data.reference, p.map_source.points, max_dt) for p in pieces]
+    return Trajectory(np.concatenate([c.t for c in parts]),
+                      np.concatenate([c.poses for c in parts]))
+
+
+def time_to_right(ate, trajectory: Trajectory, lost: np.ndarray) -> float:
+    """Seconds from the first scan until the estimate is right (not lost) and stays right to the
+    end; ``inf`` when it is lost at the end."""
+    if len(lost) == 0 or lost[-1]:
+        return math.inf
+    t = trajectory.t[ate.association.est_index]
+    order = np.argsort(t)
+    t, lost = t[order], lost[order]
+    wrong = np.flatnonzero(lost)
+    first_right = t[wrong[-1] + 1] if len(wrong) else t[0]
+    return float(first_right - trajectory.t.min())
+
+
+def _relations(trajectory: Trajectory, data: RunData) -> dict[str, float]:
+    from fusion.io import Relations, read_relations
+
+    spec = data.spec
+    assert spec.relations is not None
+    rel = read_relations(spec.relations, spec.time_offset)
+    lo, hi = trajectory.t.min() - 0.02, trajectory.t.max() + 0.02
+    keep = (rel.t1 >= lo) & (rel.t1 <= hi) & (rel.t2 >= lo) & (rel.t2 <= hi)
+    result = RelationError(max_dt=0.02).compute(
+        trajectory, Relations(rel.t1[keep], rel.t2[keep], rel.delta[keep])).as_dict()
+    return {"rel_trans_m": result.get("translation_mean_m", math.nan),
+            "rel_rot_rad": math.radians(result.get("rotation_mean_deg", math.nan))}
+
