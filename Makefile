@@ -27,8 +27,12 @@ test-all: setup
 bench: setup
 	$(BIN)/python -m benchmarks.run_all
 
-# the real-world benchmark: six buildings × protocols × houghloc and its peers, on Dask
+# the real-world benchmark: six buildings × protocols × houghloc and its peers, on Dask.
+# MRPT's pf-localization is a Debian package: installed here when apt-get can, else its rows
+# are errors that say so.
 bench-real: setup
+	command -v pf-localization >/dev/null || (apt-get update -qq && apt-get install -y -qq \
+	    mrpt-apps) >/dev/null 2>&1 || echo "mrpt-apps not installed: the mrpt rows will say so"
 	$(BIN)/houghloc sweep --spec benchmarks/real.yaml --out runs/bench-real
 
 lint: setup

@@ -27,13 +27,13 @@ import argparse
 import math
 import sys
 import time
-from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from benchmarks.common import yardstick_seconds
+from fusion.bench.data import from_first_scan, reference_poses
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"
@@ -90,76 +90,6 @@ def build_real_map(name: str, out_yaml: Path, png: Path | None = None):
     if png is not None:
         render_map_png(grid, segment_map, png)
     return segment_map
-
-
-def reference_poses(path: Path, scans: list | None = None):
-    """The corrected poses a CARMEN log attaches to its scans (Scan.reference), as a Trajectory.
-
-    With ``scans`` (the raw log's, when the reference comes from another file), each reference
-    pose takes the stamp of the raw scan with the same ranges: the reference's stamps have six
-    significant digits (1–10 ms) while the raw log delivers scans in bursts 1 ms apart, turning
-    on the spot by several degrees from one to the next (Intel: 7 of the 345 references in the
-    .mat's span are nearer in time to a neighbour of their own scan)."""
-    from fusion.evaluation import Trajectory
-    from fusion.events import Scan
-    from fusion.io import open_log
-
-    events, _ = open_log(path)
-    ref_scans = [e for e in events if isinstance(e, Scan) and e.reference]
-    times = np.array([e.t for e in ref_scans], dtype=float)
-    if scans:
-        times = _stamps_of_identical_scans(ref_scans, times, scans)
-    arr = np.asarray([e.reference for e in ref_scans], dtype=float).reshape(-1, 3)
-    order = np.argsort(times, kind="stable")
-    return Trajectory(times[order], arr[order])
-
-
-def _stamps_of_identical_scans(ref_scans: list, times: np.ndarray, scans: list,
-                               window: float = 0.02, tolerance: float = 0.011) -> np.ndarray:
-    """``times`` with each entry replaced by the stamp of the raw scan within ``window`` seconds
-    whose ranges equal the reference scan's (to the printed precision, ``tolerance`` m); kept
-    when there is no such scan."""
-    raw_t = np.array([s.t if s.stamp is None else s.stamp for s in scans], dtype=float)
-    order = np.argsort(raw_t, kind="stable")
-    sorted_t = raw_t[order]
-    out = times.copy()
-    for k, ref in enumerate(ref_scans):
-        lo, hi = np.searchsorted(sorted_t, (times[k] - window, times[k] + window))
-        candidates = order[lo:hi]
-        if len(candidates) == 0:
-            continue
-        r = np.asarray(ref.ranges, dtype=float)
-        diff = [np.max(np.abs(np.asarray(scans[i].ranges, dtype=float) - r))
-                if len(scans[i].ranges) == len(r) else np.inf for i in candidates]
-        best = int(np.argmin(diff))
-        if diff[best] <= tolerance:
-            out[k] = raw_t[candidates[best]]
-    return out
-
-
-def from_first_scan(events: Iterable, limit: int | None = None) -> Iterator:
-    """The events from the first scan on (with the last odometry reading before it, which anchors
-    the odometry frame at the start pose); at most ``limit`` scans."""
-    from fusion.events import Odometry, Scan
-
-    last_odom = None
-    started = False
-    scans = 0
-    for e in events:
-        if not started:
-            if isinstance(e, Odometry):
-                last_odom = e
-                continue
-            if not isinstance(e, Scan):
-                continue
-            started = True
-            if last_odom is not None:
-                yield last_odom
-        if isinstance(e, Scan):
-            if limit is not None and scans >= limit:
-                return
-            scans += 1
-        yield e
 
 
 @dataclass

@@ -256,3 +256,20 @@ def test_a_worker_killed_mid_sweep_loses_nothing(office_run, tmp_path):
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 os.killpg(p.pid, signal.SIGKILL)
+
+
+def test_mrpt_peer_on_the_hand_computed_case(hand_log, tmp_path):
+    import shutil
+
+    if shutil.which("pf-localization") is None:
+        pytest.skip("MRPT's pf-localization is not installed (Debian package mrpt-apps; "
+                    "make bench-real installs it)")
+    spec = _spec(hand_log, {
+        "runs": [{"name": "hand", "log": "hand.log", "build_from": "hand.log",
+                  "reference": "reference.tum"}],
+        "methods": ["mrpt"], "protocols": ["same-run"]})
+    run_sweep(load_spec(spec), tmp_path / "o", workers=1, progress=False)
+    (row,) = _rows(tmp_path / "o")
+    assert row["status"] == "ok", row["error"]
+    assert int(row["scans"]) == N
+    assert float(row["ate_rmse_m"]) < 0.15  # 0.07 m × k without the map

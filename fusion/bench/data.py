@@ -309,20 +309,17 @@ def _placed_scans(path: Path, reference: Trajectory, log: Path, log_scans: list[
             yield dataclasses.replace(e, reference=tuple(pose.tolist()))
 
 
-def covered(scans: list[Scan], reference: Trajectory, map_points: NDArray[np.float64],
-            max_dt: float, max_range: float = 30.0) -> Trajectory:
-    """The reference poses whose scan the map covers (:data:`COVERED_SHARE`)."""
-    tree = cKDTree(map_points) if len(map_points) else None
-    keep_t, keep_pose = [], []
-    for scan in scans:
-        pose = pose_near(reference, scan_stamp(scan), max_dt)
-        if pose is None or tree is None:
-            continue
+def covered(scans: list[Scan], poses: NDArray[np.float64], map_points: NDArray[np.float64],
+            max_range: float = 30.0) -> NDArray[np.bool_]:
+    """Whether the map covers each scan placed at its reference pose (:data:`COVERED_SHARE`)."""
+    out = np.zeros(len(scans), dtype=bool)
+    if len(map_points) == 0:
+        return out
+    tree = cKDTree(map_points)
+    for k, (scan, pose) in enumerate(zip(scans, poses, strict=True)):
         pts = ranges_to_points(scan.ranges, scan.angles, min(max_range, scan.max_range))
-        if len(pts) == 0:
-            continue
-        dist, _ = tree.query(transform_points(pose, pts), distance_upper_bound=COVERED_DISTANCE)
-        if np.mean(dist <= COVERED_DISTANCE) >= COVERED_SHARE:
-            keep_t.append(scan_stamp(scan))
-            keep_pose.append(pose)
-    return Trajectory(keep_t, np.asarray(keep_pose).reshape(-1, 3))
+        if len(pts):
+            dist, _ = tree.query(transform_points(pose, pts),
+                                 distance_upper_bound=COVERED_DISTANCE)
+            out[k] = np.mean(dist <= COVERED_DISTANCE) >= COVERED_SHARE
+    return out

@@ -14,6 +14,7 @@ excluded).
   ``update_min_a`` since the last update (and on the first scan), resampling on every update
   (nav2's ``resample_interval: 1``), and between updates the pose is the last estimate carried
   forward by the odometry.
+* ``mrpt``: MRPT's ``pf-localization`` (:mod:`fusion.bench.mrpt`), likelihood field.
 
 The peers live in the optional extra ``houghloc[peers]``; a method whose package is missing
 raises :class:`MissingPeer`, which the task records as its error.
@@ -51,13 +52,13 @@ class Localized:
 def localize(method: Method, piece: Piece, config: LocalizerConfig) -> Localized:
     """Run ``method`` on ``piece``; ``config`` is houghloc's (the peers read only its sensor)."""
     runner = {Method.HOUGHLOC: _houghloc, Method.ODOMETRY: _odometry, Method.ICP: _icp,
-              Method.AMCL: _amcl, Method.AMCL_TUNED: _amcl}[method]
+              Method.AMCL: _amcl, Method.AMCL_TUNED: _amcl, Method.MRPT: _mrpt}[method]
     return runner(piece, config, method)
 
 
 def supports(method: Method, global_start: bool) -> bool:
     """Whether the method can start without a pose (dead reckoning and ICP cannot)."""
-    return not global_start or method in (Method.HOUGHLOC, Method.AMCL, Method.AMCL_TUNED)
+    return not global_start or method not in (Method.ODOMETRY, Method.ICP)
 
 
 def _laser(config: LocalizerConfig) -> SensorConfig:
@@ -254,6 +255,16 @@ def _make_amcl(amcl: Any, p: dict[str, Any], piece: Piece, sensor: SensorConfig)
             cov.set(i, i, v)
     filt.set_initial_pose(mean, cov)
     return filt
+
+
+def _mrpt(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
+    from fusion.bench.mrpt import MrptUnavailable, run_pf_localization
+
+    try:
+        trajectory, cpu = run_pf_localization(piece, _laser(config))
+    except MrptUnavailable as error:
+        raise MissingPeer(str(error)) from None
+    return Localized(trajectory, cpu)
 
 
 def _amcl_scan(amcl: Any, scan: Scan, sensor: SensorConfig) -> Any:

@@ -64,6 +64,8 @@ class Method(StrEnum):
     """nav2's AMCL (the ``amcl`` wheel) with nav2's default parameters."""
     AMCL_TUNED = "amcl-tuned"
     """The same AMCL with one parameter set tuned over all the buildings."""
+    MRPT = "mrpt"
+    """MRPT's pf-localization (Debian package mrpt-apps), likelihood field."""
 
 
 class _Strict(BaseModel):

@@ -18,7 +18,7 @@ import numpy as np
 from fusion.bench.data import Piece, RunData, covered
 from fusion.bench.methods import Localized, MissingPeer, localize, supports
 from fusion.bench.spec import Method, Protocol, RunSpec, apply_settings, settings_label
-from fusion.evaluation import ATE, LostFraction, RelationError, Trajectory
+from fusion.evaluation import ATE, ATEResult, LostFraction, RelationError, Trajectory
 
 LOST_POSITION = 0.3
 """m: a pose farther than this from the reference is lost (as is one off by LOST_HEADING_DEG)."""
@@ -84,6 +84,10 @@ def _run(task: Task, row: dict[str, Any]) -> Trajectory:
     if not supports(task.method, global_start):
         raise ValueError(f"{task.method.value} cannot start without a pose")
     done = [localize(task.method, piece, config) for piece in pieces]
+    for piece, result in zip(pieces, done, strict=True):
+        if len(result.trajectory) != len(piece.scans):  # scoring pairs poses with scans
+            raise RuntimeError(f"{task.method.value} gave {len(result.trajectory)} poses for "
+                               f"{len(piece.scans)} scans")
     trajectory = Trajectory(np.concatenate([d.trajectory.t for d in done]),
                             np.concatenate([d.trajectory.poses for d in done]))
     row.update(score(trajectory, data, pieces, done, task.max_dt, global_start))
@@ -96,35 +100,41 @@ def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list
     for a global start, the time until right and staying right."""
     scans = sum(len(d.trajectory) for d in done)
     ate = ATE(max_dt=max_dt).compute(trajectory, data.reference)
-    lost = LostFraction(LOST_POSITION, LOST_HEADING_DEG, max_dt).from_ate(ate)
-    cover = _covered(pieces, data, max_dt)
-    lost_covered = LostFraction(LOST_POSITION, LOST_HEADING_DEG, max_dt).compute(trajectory,
-                                                                                 cover)
+    lost = LostFraction(LOST_POSITION, LOST_HEADING_DEG, max_dt).from_ate(ate).lost
+    cover = _covered(ate, data, pieces)
     position = ate.position
     out: dict[str, Any] = {
         "scans": scans,
         "ate_rmse_m": position["rmse"],
         "ate_max_m": position["max"],
         "heading_rmse_deg": ate.heading_deg["rmse"],
-        "lost_frac": lost.fraction,
-        "covered_frac": len(cover) / max(len(ate.position_errors), 1),
-        "lost_covered_frac": lost_covered.fraction,
+        "lost_frac": float(np.mean(lost)) if len(lost) else math.nan,
+        "covered_frac": float(np.mean(cover)) if len(cover) else math.nan,
+        "lost_covered_frac": float(np.mean(lost[cover])) if cover.any() else math.nan,
         "cpu_ms_per_scan": 1e3 * sum(d.cpu_seconds for d in done) / max(scans, 1),
     }
     if data.spec.relations is not None:
         out.update(_relations(trajectory, data))
     if global_start:
-        out["global_time_s"] = time_to_right(ate, trajectory, lost.lost)
+        out["global_time_s"] = time_to_right(ate, trajectory, lost)
     return out
 
 
-def _covered(pieces: list[Piece], data: RunData, max_dt: float) -> Trajectory:
-    parts = [covered(p.scans, data.reference, p.map_source.points, max_dt) for p in pieces]
-    return Trajectory(np.concatenate([c.t for c in parts]),
-                      np.concatenate([c.poses for c in parts]))
+def _covered(ate: ATEResult, data: RunData, pieces: list[Piece]) -> np.ndarray:
+    """Which of the scored poses the map of their piece covers: each estimate's scan, placed at
+    the reference pose it was paired with."""
+    scans = [scan for piece in pieces for scan in piece.scans]
+    piece_of = np.concatenate([np.full(len(p.scans), k) for k, p in enumerate(pieces)])
+    est, ref = ate.association.est_index, ate.association.ref_index
+    out = np.zeros(len(est), dtype=bool)
+    for k, piece in enumerate(pieces):
+        mine = np.flatnonzero(piece_of[est] == k)
+        out[mine] = covered([scans[i] for i in est[mine]], data.reference.poses[ref[mine]],
+                            piece.map_source.points)
+    return out
 
 
-def time_to_right(ate, trajectory: Trajectory, lost: np.ndarray) -> float:
+def time_to_right(ate: ATEResult, trajectory: Trajectory, lost: np.ndarray) -> float:
     """Seconds from the first scan until the estimate is right (not lost) and stays right to the
     end; ``inf`` when it is lost at the end."""
     if len(lost) == 0 or lost[-1]:
