@@ -13,7 +13,9 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -22,10 +24,27 @@ from typing import Any
 import numpy as np
 
 EXIT_BAD_INPUT = 2
+EXIT_NOT_LOCALIZED = 3
 
 
 class CliError(Exception):
     """A problem the user can fix; printed without a traceback."""
+
+
+class _Stop:
+    """The signal that interrupted the command: SIGTERM (what kill, timeout, systemd and CI
+    send) is handled as Ctrl-C is, and the exit status says which (128 + its number)."""
+
+    signal = signal.SIGINT
+
+    @classmethod
+    def on_terminate(cls, signum: int, _frame: object) -> None:
+        cls.signal = signal.Signals(signum)
+        raise KeyboardInterrupt
+
+    @classmethod
+    def exit_code(cls) -> int:
+        return 128 + int(cls.signal)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,11 +53,14 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="houghloc: warning: %(message)s")
     logging.captureWarnings(True)
     warnings.simplefilter("default")
+    _Stop.signal = signal.SIGINT
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _Stop.on_terminate)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print("houghloc: interrupted", file=sys.stderr)
-        return 130
+        print(f"houghloc: interrupted ({_Stop.signal.name})", file=sys.stderr)
+        return _Stop.exit_code()
     except Exception as exc:  # every failure is a message, not a traceback
         if getattr(args, "debug", False):
             raise
@@ -89,6 +111,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="start pose in the map (m, m, rad); without it: global localization")
     run.add_argument("--gt", type=Path, help="ground truth (TUM) for errors in metrics.json")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument("--strict", action="store_true",
+                     help="exit with status 3 when the run ends lost or most scans were not "
+                          "localized (tracking)")
     _recording_options(run)
     run.set_defaults(func=cmd_run)
 
@@ -189,15 +214,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     write_metrics(args.out / "metrics.json", doc)
     _serve_until_interrupted(args, logger)
     logger.close()
-    print(f"{len(result.t)} scans in {result.seconds['total']:.1f} s "
-          f"({result.scans_per_second:.0f} scans/s); fixes accepted {loc.stats.accepted}, "
-          f"rejected {loc.stats.rejected}, ambiguous {loc.stats.ambiguous}, "
-          f"none {loc.stats.no_fix}")
+    print(run_summary(result, loc))
     if "ate" in doc:
         _print_accuracy_rows([("houghloc", doc)])
     print(f"wrote {args.out / 'trajectory.tum'}, {args.out / 'metrics.json'}"
           + ("" if args.no_rerun else f", {args.out / 'run.rrd'}"))
-    return 130 if result.interrupted else 0
+    if result.interrupted:
+        return _Stop.exit_code()
+    if args.strict and not localized_enough(loc):
+        print("houghloc: --strict: the run was not localized (see above)", file=sys.stderr)
+        return EXIT_NOT_LOCALIZED
+    return 0
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -284,6 +311,37 @@ def cmd_eval(args: argparse.Namespace) -> int:
                      ("rotation_mean_deg", "rotation_std_deg"))
         print(f"  rotational     mean {mean:.4f} rad   std {std:.4f} rad")
     return 0
+
+
+def run_summary(result: Any, loc: Any) -> str:
+    """What became of the scans, in words: how many, how fast, by status, and whether the run
+    ended localized."""
+    statuses = ", ".join(f"{k} {v}" for k, v in sorted(loc.stats.statuses.items(),
+                                                        key=lambda kv: -kv[1]))
+    text = (f"{result.scans} scans in {result.seconds['total']:.1f} s "
+            f"({result.scans_per_second:.0f} scans/s); by status: {statuses or 'none'}")
+    tracked = tracked_fraction(loc)
+    if loc.manager.state.value != "tracking":
+        text += (f"\nhoughloc: warning: the run ended {loc.manager.state.value}: not localized "
+                 f"at the end")
+    if tracked < 0.5 and result.scans:
+        text += (f"\nhoughloc: warning: only {100 * tracked:.0f} % of the scans were localized "
+                 "(tracking)")
+    return text
+
+
+def tracked_fraction(loc: Any) -> float:
+    """The share of scans that ended in tracking (a fix used or not, but the pose trusted)."""
+    from fusion.ambiguity import State
+
+    untracked = {s.value for s in State if s is not State.TRACKING} | {"relocalized"}
+    total = sum(loc.stats.statuses.values())
+    lost = sum(v for k, v in loc.stats.statuses.items() if k in untracked)
+    return 1.0 - lost / total if total else 0.0
+
+
+def localized_enough(loc: Any) -> bool:
+    return loc.manager.state.value == "tracking" and tracked_fraction(loc) >= 0.5
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
