@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import yardstick_seconds
-from fusion.bench.data import from_first_scan, reference_poses
+from fusion.bench.data import reference_poses
+from fusion.io import from_first_scan
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data"

@@ -108,7 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", required=True, type=Path, help="output directory")
     run.add_argument("--config", type=Path, help="localizer YAML (default: 2D laser + odometry)")
     run.add_argument("--initial-pose", nargs=3, type=float, metavar=("X", "Y", "THETA"),
-                     help="start pose in the map (m, m, rad); without it: global localization")
+                     help="the pose at the log's first scan, in the map (m, m, rad; odometry "
+                     "before that scan is skipped); without it: global localization")
     run.add_argument("--gt", type=Path, help="ground truth (TUM) for errors in metrics.json")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--strict", action="store_true",
@@ -191,6 +192,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     segment_map = SegmentMap.from_yaml(args.map)
     events, read_stats, sim_gt = _open_log(args.log)
+    if args.initial_pose is not None:
+        from fusion.io import from_first_scan
+
+        events = from_first_scan(events)
     gt_path = args.gt or sim_gt
     reference = Trajectory.from_tum(gt_path) if gt_path else None
     if args.initial_pose is not None and not all(math.isfinite(v) for v in args.initial_pose):
@@ -215,6 +220,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     _serve_until_interrupted(args, logger)
     logger.close()
     print(run_summary(result, loc))
+    for kind, info in (read_stats.by_kind().items() if read_stats is not None else ()):
+        print(f"houghloc: warning: {args.log}: {info['count']} × {kind} (first: "
+              f"{info['first']})", file=sys.stderr)
     if "ate" in doc:
         _print_accuracy_rows([("houghloc", doc)])
     print(f"wrote {args.out / 'trajectory.tum'}, {args.out / 'metrics.json'}"

@@ -14,12 +14,14 @@ from numpy.typing import NDArray
 
 @dataclass(frozen=True, slots=True)
 class Odometry:
-    """A wheel-odometry pose (x, y, θ) in the odometry frame at time ``t``."""
+    """A wheel-odometry pose (x, y, θ) in the odometry frame at time ``t`` (``line``: the
+    record's line number in its file, for messages)."""
 
     t: float
     x: float
     y: float
     theta: float
+    line: int | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,14 +85,27 @@ Event = Odometry | Scan | PointSet | Truth | Landmark
 
 @dataclass
 class ReadStats:
-    """What a reader saw and skipped, for warnings and ``metrics.json``."""
+    """What a reader saw and skipped, for warnings and ``metrics.json``.
+
+    ``warnings`` keeps the first messages; ``kinds`` counts every warning by kind with the first
+    message of each, so a kind that comes late in a long log is never hidden by a cap."""
 
     records: int = 0
     skipped: int = 0
     backwards_timestamps: int = 0
+    stray_timestamps: int = 0
     warnings: list[str] = field(default_factory=list)
+    kinds: dict[str, list] = field(default_factory=dict)  # kind → [count, first message]
 
-    def warn(self, message: str, keep: int = 50) -> None:
+    def warn(self, message: str, keep: int = 50, kind: str = "bad record") -> bool:
+        """Count a skipped record; True when it is the first of its kind."""
         self.skipped += 1
         if len(self.warnings) < keep:
             self.warnings.append(message)
+        entry = self.kinds.setdefault(kind, [0, message])
+        entry[0] += 1
+        return entry[0] == 1
+
+    def by_kind(self) -> dict[str, dict[str, object]]:
+        return {kind: {"count": count, "first": first}
+                for kind, (count, first) in self.kinds.items()}

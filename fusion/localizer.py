@@ -9,6 +9,7 @@ Follow one scan: :meth:`Localizer.on_points` is the whole story.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from fusion.ambiguity import AmbiguityManager, State
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
+from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
 from fusion.scan_odometry import ScanOdometry
 from fusion.tracker import PoseTracker
@@ -27,6 +29,14 @@ from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points
 from houghloc.localize import clean_points
+
+log = logging.getLogger(__name__)
+LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them all
+
+MAX_ODOMETRY_COORDINATE = 1.0e6
+"""Odometry farther than this from its origin (m), or turned further (rad: 160,000 turns), is no
+robot's; at such magnitudes a float's resolution is worse than a nanometre's tolerance of 1e-10
+relative anyway."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +62,8 @@ class LocalizerStats:
     scans: int = 0
     partial_rank: int = 0
     late: int = 0
+    stray_timestamps: int = 0
+    invalid_odometry: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=lambda: {"hough": 0.0, "update": 0.0})
 
@@ -94,6 +106,7 @@ class Localizer:
         self.scan_odometry = ScanOdometry(so, self.tracker.motion) if so.enabled else None
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
         self.logger.log_map(map)
+        self._held_odometry: tuple[float, float, float, float] | None = None
         self._start_reason = "initial pose given"
         if initial_pose is None:
             self.manager.start_lost(0.0, "no initial pose: global localization")
@@ -117,7 +130,37 @@ class Localizer:
     def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
         """Predict with the odometry increment since the last reading (its frame is arbitrary),
         after removing the configured scale errors (``filter.motion.*_scale``) and, with scan
-        odometry, in the frame the scan matches corrected."""
+        odometry, in the frame the scan matches corrected.
+
+        Time (:mod:`fusion.io.timing`): a reading more than ``MAX_TIME_STEP`` after the previous
+        one is held until the next confirms it (at or after it) or shows it a stray stamp
+        (before it: dropped and counted in ``stats.stray_timestamps``). A reading that cannot be
+        a pose (non-finite, or beyond ``MAX_ODOMETRY_COORDINATE``) is dropped and counted; the
+        chain continues from the last good reading."""
+        if not (all(map(math.isfinite, (t, x, y, theta)))
+                and max(abs(x), abs(y), abs(theta)) <= MAX_ODOMETRY_COORDINATE):
+            self.stats.invalid_odometry += 1
+            if self.stats.invalid_odometry <= LOGGED_WARNINGS:
+                log.warning("odometry at t = %s cannot be a pose (%s, %s, %s): dropped, the chain "
+                            "goes on from the last good reading", t, x, y, theta)
+            return
+        reading = (t, x, y, theta)
+        held, self._held_odometry = self._held_odometry, None
+        if held is not None:
+            if t >= held[0]:
+                self._use_odometry(*held)
+            else:
+                self.stats.stray_timestamps += 1
+                if self.stats.stray_timestamps <= LOGGED_WARNINGS:
+                    log.warning("odometry at t = %s jumped ahead of the readings before and "
+                                "after it (t = %s): dropped", held[0], t)
+        clock = self.tracker.odometry_time
+        if clock is not None and t - clock > MAX_TIME_STEP and held is None:
+            self._held_odometry = reading
+            return
+        self._use_odometry(*reading)
+
+    def _use_odometry(self, t: float, x: float, y: float, theta: float) -> None:
         if self._calibrate is not None:
             x, y, theta = self._calibrate(x, y, theta)
         if self.scan_odometry is not None and math.isfinite(x + y + theta):
@@ -149,6 +192,21 @@ class Localizer:
         if self.stats.scans == 0:  # the recording starts with the state and why
             self.logger.log_state(t, self.manager.state.value, self._start_reason)
         self.stats.scans += 1
+        held = self._held_odometry
+        if held is not None and t >= held[0] - MAX_TIME_STEP:  # the scan's clock confirms it
+            self._held_odometry = None
+            self._use_odometry(*held)
+        clock = self.tracker.odometry_time
+        if not math.isfinite(t) or (clock is not None and t - clock > MAX_TIME_STEP):
+            # a scan far ahead of the odometry is a stray stamp (or the odometry stopped): its
+            # pose is unknown, and applying it would move the filter's clock past every later
+            # reading
+            self.stats.stray_timestamps += 1
+            if self.stats.stray_timestamps <= LOGGED_WARNINGS:
+                log.warning("scan at t = %s is %s s ahead of the odometry: not used", t,
+                            t - clock if clock is not None else "inf")
+            return self._finish(t if math.isfinite(t) else (clock or 0.0), "dropped", None,
+                                None, sensor, np.empty((0, 2)))
         # NaN/inf points are no returns; every stage below (scan odometry too) gets finite ones
         points = _to_base(clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0], cfg)
         if self.scan_odometry is not None and sensor == self.scan_odometry.config.sensor:

@@ -185,14 +185,15 @@ class OdometryMotionModel:
 
     def is_jump(self, delta: ArrayLike, dt: float) -> bool:
         """True when δ is implausible for the interval ``dt``: faster than the limits allow
-        (with the margin), or any motion at all over dt ≤ 0.
+        (with the margin), or any motion at all over dt < 0. Equal stamps (dt = 0: coarse or
+        repeated stamps) are judged as ``jump_min_dt`` apart: their motion is kept.
 
         The caller replaces a jump by zero motion with the covariance ``jump_noise(dt)`` and
         counts it: a jump is a glitch or a reset of the odometry, not the robot's motion.
         """
         c = self.config
         trans, dth = math.hypot(delta[0], delta[1]), float(delta[2])
-        if dt <= 0.0:
+        if dt < 0.0:
             return trans > _ZERO_MOTION or abs(dth) > _ZERO_MOTION
         dt_eff = max(dt, c.jump_min_dt)
         return (

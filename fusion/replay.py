@@ -65,7 +65,10 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     the stream, or the clocks differ by a rounding) is used at once, but its pose is recorded
     when the odometry covering its time has arrived: until then the tracker can only assume
     that the robot has not moved since the last reading — tens of millimetres at walking speed,
-    the whole error of a scan whose fix was rejected. Outputs stay in scan order.
+    the whole error of a scan whose fix was rejected. It is recorded when the next scan
+    arrives at the latest (odometry stamped behind the scans, e.g. a run of readings sharing one
+    stamp, would otherwise hold it until the stamps catch up, and then give it all the motion
+    since). Outputs stay in scan order.
     """
     t_out_list: list[float] = []
     poses: list[NDArray] = []
@@ -120,6 +123,8 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
                 truth.append((event.x, event.y, event.theta))
                 localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
                 continue
+            if pending:  # a scan's pose is recorded by the next scan at the latest: odometry
+                flush(all_of_them=True)  # stamped behind the scans never covers them
             if isinstance(event, Scan):
                 est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
                                         event.max_range)
@@ -190,6 +195,9 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
         "odometry_jumps": counts.odometry_jumps,
         "odometry_backwards": counts.odometry_backwards,
         "invalid_inputs": counts.invalid,
+        "invalid_odometry": stats.invalid_odometry,
+        "stray_timestamps": stats.stray_timestamps
+        + (read_stats.stray_timestamps if read_stats is not None else 0),
         "fixes": {"accepted": stats.accepted, "rejected": stats.rejected,
                   "ambiguous": stats.ambiguous, "no_fix": stats.no_fix,
                   "partial_rank": stats.partial_rank, "late": stats.late},
@@ -203,6 +211,8 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
     if read_stats is not None:
         doc["log"] = {"records": read_stats.records, "skipped": read_stats.skipped,
                       "backwards_timestamps": read_stats.backwards_timestamps,
+                      "stray_timestamps": read_stats.stray_timestamps,
+                      "warnings_by_kind": read_stats.by_kind(),
                       "warnings": read_stats.warnings[:20]}
     doc.update(accuracy(result, reference))
     if extra:

@@ -351,12 +351,25 @@ def test_odometry_jump_is_flagged_and_replaced_by_zero_motion():
     assert tracker.counts.odometry_jumps == 1
     np.testing.assert_allclose(tracker.pose, pose, atol=1e-12)
     assert np.all(np.diag(tracker.cov) > np.diag(cov))
-    turned = teleported + np.array([0.0, 0.0, 0.3])
-    tracker.on_odometry(t + 0.02, *turned)  # same time, other pose
+    turned = teleported + np.array([0.0, 0.0, 1.0])
+    tracker.on_odometry(t + 0.02, *turned)  # same stamp: 1 rad is no turn of jump_min_dt
     assert tracker.counts.odometry_jumps == 2
     # Afterwards the new odometry frame is followed normally.
     tracker.on_odometry(t + 0.04, *turned)
     assert tracker.counts.odometry_jumps == 2
+
+
+def test_readings_with_equal_stamps_keep_their_motion():
+    """Coarse or repeated stamps (logs printed with %g, 0.1 s clocks): the motion of readings
+    that share a stamp is composed, not taken for a jump."""
+    exact = PoseTracker([0.0, 0.0, 0.0], P0)
+    coarse = PoseTracker([0.0, 0.0, 0.0], P0)
+    for k in range(101):
+        odom = (0.005 * k, 0.0, 0.002 * k)
+        exact.on_odometry(0.01 * k, *odom)
+        coarse.on_odometry(0.1 * (k // 10), *odom)  # ten readings per stamp
+    assert coarse.counts.odometry_jumps == 0
+    np.testing.assert_allclose(coarse.pose, exact.pose, atol=1e-12)
 
 
 def test_backwards_duplicate_and_non_finite_inputs():

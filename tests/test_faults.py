@@ -4,12 +4,14 @@ repeat or go back, values that cannot be poses, initial poses at the first scan.
 from __future__ import annotations
 
 import json
+import math
 import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fusion.cli import main
@@ -82,3 +84,181 @@ def test_a_run_that_ends_lost_says_so_and_strict_fails_it(office, tmp_path, caps
     assert main([*args, "--out", str(tmp_path / "b"), "--strict"]) == 3
     assert "--strict" in capsys.readouterr().err
     assert main(_run(office, office["log"], tmp_path / "c", "--strict")) == 0
+
+
+# -- time: stray, repeated, coarse, zero and negative stamps ------------------------------------
+STAMP_FIELD = {"ODOM": 7}  # ROBOTLASER1's stamp is the third field from the end
+
+
+def _stamp_index(tokens: list[str]) -> int:
+    return STAMP_FIELD.get(tokens[0], len(tokens) - 3)
+
+
+def _restamp(lines: list[str], change) -> list[str]:
+    """``change(k, kind, t)`` gives record k's new stamp (None: unchanged)."""
+    out = []
+    for k, line in enumerate(lines):
+        tokens = line.split()
+        if tokens and tokens[0] in ("ODOM", "ROBOTLASER1"):
+            i = _stamp_index(tokens)
+            new = change(k, tokens[0], float(tokens[i]))
+            if new is not None:
+                tokens[i] = tokens[-1] = new if isinstance(new, str) else f"{new:.6f}"
+        out.append(" ".join(tokens))
+    return out
+
+
+def _write(path: Path, lines: list[str]) -> Path:
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def clean_ate(office, tmp_path_factory) -> float:
+    out = tmp_path_factory.mktemp("clean")
+    assert main(_run(office, office["log"], out)) == 0
+    return _ate(out, office["gt"])
+
+
+def _record(lines: list[str], kind: str, n: int) -> int:
+    return [k for k, line in enumerate(lines) if line.startswith(kind + " ")][n]
+
+
+def test_one_future_timestamp_is_dropped_with_its_line(office, clean_ate, tmp_path, capsys,
+                                                       caplog):
+    lines = office["lines"]
+    odom, laser = _record(lines, "ODOM", 250), _record(lines, "ROBOTLASER1", 100)
+    damaged = _restamp(lines, lambda k, kind, t: t + 100.0 if k == odom
+                       else ("1e300" if k == laser else None))
+    out = tmp_path / "o"
+    assert main(_run(office, _write(tmp_path / "f.log", damaged), out)) == 0
+    err = capsys.readouterr().err + caplog.text
+    assert f"line {odom + 1}: Odometry stamped" in err and f"line {laser + 1}: Scan" in err
+    assert "2 × stray timestamp" in err  # the total, whatever the cap on warnings
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["stray_timestamps"] == 2
+    assert metrics["log"]["warnings_by_kind"]["stray timestamp"]["count"] == 2
+    stamps = Trajectory.from_tum(out / "trajectory.tum").t
+    assert stamps.max() < 100 and np.all(np.diff(stamps) > 0)
+    assert _ate(out, office["gt"]) <= 1.2 * clean_ate
+
+
+def test_a_stray_reading_through_the_api_never_moves_the_clock(office):
+    from fusion.io import open_log
+    from fusion.localizer import Localizer
+    from houghloc import SegmentMap
+
+    def replay(stray: bool) -> np.ndarray:
+        loc = Localizer(SegmentMap.from_yaml(office["map"]), None,
+                        [float(v) for v in office["start"]])
+        events, _ = open_log(office["log"])
+        poses = []
+        odometry = 0
+        for e in events:
+            if hasattr(e, "ranges"):
+                if stray and len(poses) == 100:
+                    loc.on_scan(e.t + 25.0, e.ranges, e.angles)  # one scan 25 s ahead
+                poses.append(loc.on_scan(e.t, e.ranges, e.angles, e.sensor, e.max_range).pose)
+            else:
+                odometry += 1
+                if stray and odometry == 500:
+                    loc.on_odometry(e.t + 25.0, e.x, e.y, e.theta)  # one reading 25 s ahead
+                loc.on_odometry(e.t, e.x, e.y, e.theta)
+        assert not stray or loc.stats.stray_timestamps == 2
+        return np.asarray(poses)
+
+    np.testing.assert_allclose(replay(True), replay(False), atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["repeated", "coarse"])
+def test_repeated_and_coarse_odometry_stamps_keep_their_motion(office, clean_ate, tmp_path,
+                                                               kind):
+    lines = office["lines"]
+    first = _record(lines, "ODOM", 300)
+    last = _record(lines, "ODOM", 400)
+    t0 = float(lines[first].split()[7])
+
+    def change(k: int, rec: str, t: float) -> float | None:
+        if kind == "repeated":  # 100 readings share one stamp
+            return t0 if rec == "ODOM" and first <= k < last else None
+        return round(t, 1)  # every stamp rounded to 0.1 s, as %g logs do late in a run
+
+    out = tmp_path / "o"
+    assert main(_run(office, _write(tmp_path / f"{kind}.log", _restamp(lines, change)),
+                     out)) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["odometry_jumps"] == 0
+    # coarse: 1.3× the clean run's 1.3 mm; repeated: 9 mm (0.93 m when the motion was dropped),
+    # the readings' own times being unknown over those 2 s
+    assert _ate(out, office["gt"]) <= (1.5 * clean_ate if kind == "coarse" else 0.015)
+
+
+def test_all_zero_stamps_still_carry_the_odometry(office, tmp_path):
+    zero = _restamp(office["lines"], lambda k, rec, t: 0.0)
+    out = tmp_path / "o"
+    assert main(_run(office, _write(tmp_path / "zero.log", zero), out)) == 0
+    poses = np.loadtxt(out / "trajectory.tum")[:, 1:3]
+    travelled = np.linalg.norm(poses[-1] - poses[0])
+    truth = np.loadtxt(office["gt"])[:, 1:3]
+    assert travelled == pytest.approx(np.linalg.norm(truth[-1] - truth[0]), abs=0.2)
+
+
+def test_negative_stamps_are_ordinary_times(office, clean_ate, tmp_path):
+    shifted = _restamp(office["lines"], lambda k, rec, t: t - 1000.0)
+    gt = np.loadtxt(office["gt"])
+    gt[:, 0] -= 1000.0
+    np.savetxt(tmp_path / "gt.tum", gt)
+    out = tmp_path / "o"
+    assert main(_run(office, _write(tmp_path / "neg.log", shifted), out)) == 0
+    assert _ate(out, tmp_path / "gt.tum") == pytest.approx(clean_ate, rel=1e-6)
+
+
+def test_one_absurd_odometry_value_is_dropped_and_counted(office, clean_ate, tmp_path, caplog):
+    lines = list(office["lines"])
+    k = _record(lines, "ODOM", 500)
+    tokens = lines[k].split()
+    tokens[1] = "-1e300"
+    lines[k] = " ".join(tokens)
+    out = tmp_path / "o"
+    assert main(_run(office, _write(tmp_path / "absurd.log", lines), out)) == 0
+    assert "cannot be a pose" in caplog.text
+    assert json.loads((out / "metrics.json").read_text())["invalid_odometry"] == 1
+    assert _ate(out, office["gt"]) <= 1.2 * clean_ate
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, 1e300])
+def test_api_with_odometry_calibration_survives_a_bad_heading(office, bad):
+    from fusion.config import LocalizerConfig
+    from fusion.localizer import Localizer
+    from houghloc import SegmentMap
+
+    config = LocalizerConfig.from_dict({"filter": {"motion": {"translation_scale": 0.96}}})
+    loc = Localizer(SegmentMap.from_yaml(office["map"]), config, [0.0, 0.0, 0.0])
+    for k in range(10):
+        loc.on_odometry(0.1 * k, 0.1 * k, 0.0, 0.0)
+    loc.on_odometry(1.0, 1.0, 0.0, bad)
+    for k in range(11, 20):
+        loc.on_odometry(0.1 * k, 0.1 * k, 0.0, 0.0)
+    assert loc.pose[0] == pytest.approx(0.96 * 1.9, abs=1e-9)
+    assert loc.stats.invalid_odometry == 1
+
+
+def test_the_initial_pose_is_the_pose_at_the_first_scan(office, tmp_path):
+    """A log whose odometry moves before its first scan (most real logs do): the pose a user
+    knows is where the robot was at that scan."""
+    lines = office["lines"]
+    late = _record(lines, "ROBOTLASER1", 30)  # the robot has moved for 3 s before it
+    trimmed = [line for k, line in enumerate(lines)
+               if not (k < late and line.startswith("ROBOTLASER1"))]
+    t_first = float(lines[late].split()[-3])
+    gt = np.loadtxt(office["gt"])
+    start = gt[np.argmin(np.abs(gt[:, 0] - t_first))]
+    from scipy.spatial.transform import Rotation
+
+    yaw = Rotation.from_quat(start[4:8]).as_euler("xyz")[2]
+    out = tmp_path / "o"
+    args = ["run", "--map", str(office["map"]), "--log", str(_write(tmp_path / "t.log", trimmed)),
+            "--out", str(out), "--no-rerun", "--no-progress", "--initial-pose",
+            str(start[1]), str(start[2]), str(yaw)]
+    assert main(args) == 0
+    assert _ate(out, office["gt"]) < 0.02

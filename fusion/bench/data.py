@@ -22,6 +22,7 @@ from scipy.spatial import cKDTree
 from fusion.bench.spec import Protocol, RunSpec
 from fusion.evaluation import Trajectory
 from fusion.events import Event, Odometry, Scan
+from fusion.io.timing import from_first_scan
 from houghloc.geometry import ranges_to_points, transform_points
 
 COVERED_DISTANCE = 0.10
@@ -33,29 +34,6 @@ scan sees. A held-out map misses rooms and furniture the other half never saw; l
 say more about the map than the method."""
 MAP_POINT_SPACING = 0.025
 """m: the map's source points are thinned to one per cell of this size (ICP's target, coverage)."""
-
-
-def from_first_scan(events: Iterable[Event], limit: int | None = None) -> Iterator[Event]:
-    """The events from the first scan on (with the last odometry reading before it, which anchors
-    the odometry frame at the start pose); at most ``limit`` scans."""
-    last_odom = None
-    started = False
-    scans = 0
-    for e in events:
-        if not started:
-            if isinstance(e, Odometry):
-                last_odom = e
-                continue
-            if not isinstance(e, Scan):
-                continue
-            started = True
-            if last_odom is not None:
-                yield last_odom
-        if isinstance(e, Scan):
-            if limit is not None and scans >= limit:
-                return
-            scans += 1
-        yield e
 
 
 def scan_stamp(scan: Scan) -> float:

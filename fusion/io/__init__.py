@@ -27,10 +27,12 @@ from fusion.io.files import atomic_write_json, atomic_write_text
 from fusion.io.intel_mat import IntelMatLog, read_intel_mat
 from fusion.io.relations import INTEL_TIME_OFFSET, Relations, read_relations
 from fusion.io.rosbag import RosbagLog, read_rosbag
+from fusion.io.timing import MAX_TIME_STEP, StrayStampFilter, from_first_scan
 from fusion.io.tum import TrajectoryValueError, TumWriter, read_tum, write_tum
 
 __all__ = [
     "INTEL_TIME_OFFSET",
+    "MAX_TIME_STEP",
     "SIM_CAMERA_NAME",
     "SIM_LOG_NAME",
     "CarmenLog",
@@ -40,11 +42,13 @@ __all__ = [
     "LogError",
     "Relations",
     "RosbagLog",
+    "StrayStampFilter",
     "TrajectoryValueError",
     "TumWriter",
     "atomic_write_json",
     "atomic_write_text",
     "flaser_angles",
+    "from_first_scan",
     "merge_by_time",
     "open_log",
     "read_camera_points",
@@ -82,7 +86,12 @@ def open_log(
     the camera file's bad records are counted and warned about in the same stats.
     Raises ``LogError`` for a missing path or a directory that is neither kind.
     """
-    path = Path(path)
+    events, stats = _open_reader(Path(path), extra_sources, reader_options)
+    return iter(StrayStampFilter(events, stats, name=str(path))), stats
+
+
+def _open_reader(path: Path, extra_sources: Iterable[EventSource],
+                 reader_options: dict[str, Any]) -> tuple[Iterable[Event], ReadStats]:
     if not path.exists():
         raise LogError(path, "file not found")
     if path.is_dir():

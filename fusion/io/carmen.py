@@ -206,7 +206,7 @@ def _reset(stats: ReadStats) -> None:
 
 def _sniff(path: Path) -> CarmenConventions:
     """Read the first lines to tell CARMEN from other files and detect the conventions."""
-    odom = laser = anchors = known = nonblank = 0
+    odom = laser = anchors = known = nonblank = stamped = 0
     lines_since_laser = None
     with open_text_log(path) as f:
         for number, line in enumerate(f, start=1):
@@ -229,6 +229,7 @@ def _sniff(path: Path) -> CarmenConventions:
                 lines_since_laser += 1
             if kind == "ODOM":
                 odom += 1
+                stamped += _odom_time(line) not in (None, 0.0)
                 # The re-anchoring line of a corrected log: timestamp 0 right after a laser record.
                 if (
                     lines_since_laser is not None
@@ -240,7 +241,9 @@ def _sniff(path: Path) -> CarmenConventions:
         raise LogError(path, "empty file (no records)")
     if known == 0:
         raise LogError(path, "not a CARMEN log (no ODOM/FLASER/ROBOTLASER1/PARAM record found)")
-    return CarmenConventions(corrected=anchors > 0, laser_odometry=odom == 0 and laser > 0)
+    # a log whose stamps are all zero has no anchors, only unstamped readings
+    return CarmenConventions(corrected=anchors > 0 and stamped > 0,
+                             laser_odometry=odom == 0 and laser > 0)
 
 
 def _odom_time(line: str) -> float | None:
@@ -291,7 +294,8 @@ class _CarmenParser:
                     emitted += 1
                     yield event
         except (OSError, EOFError) as err:  # a truncated or corrupt gzip stream
-            self._warn(f"line {number + 1}: stream ends early ({err}); the rest is lost")
+            self._warn(f"line {number + 1}: stream ends early ({err}); the rest is lost",
+                       "stream ends early")
         hidden = len(self.stats.warnings) and self.stats.skipped - LOGGED_WARNINGS
         if hidden > 0:
             log.warning("%s: %d more bad records not shown", path, hidden)
@@ -300,9 +304,11 @@ class _CarmenParser:
                 path, f"no usable record ({number} lines read, {self.stats.skipped} bad records)"
             )
 
-    def _warn(self, message: str) -> None:
-        self.stats.warn(message)
-        if self.stats.skipped <= LOGGED_WARNINGS:
+    def _warn(self, message: str, kind: str = "bad record") -> None:
+        # a damaged line may hold terminal escapes: never echo them
+        message = "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+        first = self.stats.warn(message, kind=kind)
+        if self.stats.skipped <= LOGGED_WARNINGS or first:
             log.warning("%s: %s", self.source.path, message)
 
     def _check_order(self, t: float) -> None:
@@ -317,7 +323,7 @@ class _CarmenParser:
         None for a record type that is not used."""
         kind = tokens[0]
         if kind == "ODOM":
-            return self._odom(tokens)
+            return self._odom(tokens, number)
         if kind == "FLASER":
             return self._flaser(tokens, number)
         if kind == "ROBOTLASER1":
@@ -328,11 +334,11 @@ class _CarmenParser:
             raise _BadRecord("not a CARMEN record")
         return None
 
-    def _odom(self, tokens: list[str]) -> list[Event]:
+    def _odom(self, tokens: list[str], number: int) -> list[Event]:
         _need(tokens, 9, "ODOM")
         pose = _pose(tokens, 1)
         if not self.corrected:
-            return [Odometry(_time(tokens[7]), *pose.tolist())]
+            return [Odometry(_time(tokens[7]), *pose.tolist(), line=number)]
         laser_pose, self._laser_pose = self._laser_pose, None
         if laser_pose is not None and np.array_equal(pose, laser_pose):
             # The re-anchoring line right after a laser record repeats its corrected pose. Its
@@ -350,7 +356,7 @@ class _CarmenParser:
             base = self._anchor if self._anchor is not None else self._prev_logged
             raw = compose(self._raw, relative(base, pose))
         self._raw, self._prev_logged, self._anchor = raw, pose, None
-        return [Odometry(t, *raw.tolist())]
+        return [Odometry(t, *raw.tolist(), line=number)]
 
     def _flaser(self, tokens: list[str], number: int) -> list[Event]:
         n = _count(tokens[1], "beam count")
@@ -451,10 +457,8 @@ def _count(text: str, what: str) -> int:
 
 
 def _time(text: str) -> float:
-    value = _number(text)
-    if value < 0:
-        raise _BadRecord(f"negative timestamp {value}")
-    return value
+    """A timestamp: any finite number of seconds (negative stamps count from a later origin)."""
+    return _number(text)
 
 
 def _pose(tokens: list[str], start: int) -> NDArray[np.float64]:
