@@ -758,13 +758,30 @@ def visible_parallel_spacing(theta: NDArray, rho: NDArray, angle_tol: float = ma
 
 def _closest_parallel_spacing(m: SegmentMap, angle_tol: float = math.radians(2.0)) -> float:
     """The smallest distance between two parallel map lines (how far nearest-neighbour matching
-    can be trusted); large when no two lines are parallel."""
+    can be trusted); large when no two lines are parallel.
+
+    Lines sorted by direction (mod π) are compared with their k-th neighbour for k = 1, 2, …
+    while some pair is still within ``angle_tol``: memory stays linear in the lines, and time
+    grows with the size of the largest family of parallel lines, not with its square of all."""
     a, r = m.line_alpha, m.line_r
-    if len(a) < 2:
+    n = len(a)
+    if n < 2:
         return math.inf
-    da = np.abs((a[:, None] - a[None, :] + np.pi / 2) % np.pi - np.pi / 2)
-    parallel = (da < angle_tol) & ~np.eye(len(a), dtype=bool)
-    same_sense = np.abs(a[:, None] - a[None, :]) < np.pi / 2
-    gap = np.abs(np.where(same_sense, r[:, None] - r[None, :], r[:, None] + r[None, :]))
-    gap = np.where(parallel & (gap > 0.05), gap, np.inf)
-    return float(gap.min())
+    folded = np.mod(a, np.pi)
+    order = np.argsort(folded)
+    # the circle of directions, unrolled once so that lines near 0 and near π are neighbours
+    ext = np.concatenate((order, order))
+    ext_dir = np.concatenate((folded[order], folded[order] + np.pi))
+    best = math.inf
+    for k in range(1, n):
+        i, j = ext[:n], ext[k:k + n]
+        close = ext_dir[k:k + n] - ext_dir[:n] < angle_tol
+        if not close.any():
+            break
+        i, j = i[close], j[close]
+        same_sense = np.abs(a[i] - a[j]) < np.pi / 2
+        gap = np.abs(np.where(same_sense, r[i] - r[j], r[i] + r[j]))
+        gap = gap[gap > 0.05]
+        if gap.size:
+            best = min(best, float(gap.min()))
+    return best

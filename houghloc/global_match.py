@@ -61,7 +61,7 @@ from houghloc.geometry import TWO_PI, wrap_angle
 from houghloc.localize import scan_reach
 from houghloc.matching import Matches, associate
 from houghloc.refine import Lines
-from houghloc.segment_map import References, SegmentMap
+from houghloc.segment_map import MapError, References, SegmentMap, check_grid_size
 
 
 class GlobalMatchConfig(BaseModel):
@@ -291,9 +291,19 @@ def angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float,
                    lambda: _build_angle_index(map, kinds, min_angle, pad))
 
 
+MAX_INDEX_PAIRS = 10_000_000
+"""Oriented line pairs in the angle index (about 100 bytes each: 1 GB): a map of up to 1,580
+distinct lines; every real building here has under 400."""
+
+
 def _build_angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float,
                        pad: float) -> AngleIndex:
     lines = map_lines_of_kinds(map, kinds)
+    if (2 * len(lines)) ** 2 > MAX_INDEX_PAIRS:
+        raise MapError(f"map {map.source}: {len(lines)} distinct lines make "
+                       f"{(2 * len(lines)) ** 2:,} oriented pairs for global matching's angle "
+                       f"index (~{(2 * len(lines)) ** 2 * 100 / 2**30:.1f} GiB), more than the "
+                       f"{MAX_INDEX_PAIRS:,} allowed")
     beta = np.concatenate((map.line_alpha[lines], map.line_alpha[lines] + np.pi))
     r = np.concatenate((map.line_r[lines], -map.line_r[lines]))
     line = np.concatenate((lines, lines))
@@ -328,6 +338,7 @@ def _build_wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
     ends = np.concatenate((map.starts[segs], map.ends[segs]))
     origin = ends.min(axis=0) - margin
     w, h = np.ceil((ends.max(axis=0) + margin - origin) / cell).astype(int) + 1
+    check_grid_size((h, w), cell, f"map {map.source}")
     # walls are drawn as 0 on a 255 background; the transform gives each cell's distance (in
     # cells, exact Euclidean) to the nearest wall pixel
     image = np.full((h, w), 255, dtype=np.uint8)

@@ -33,6 +33,24 @@ SegmentKind = Literal["wall", "line"]
 _VISIBILITY_CACHE_SIZE = 4096
 
 
+MAX_MAP_EXTENT = 5000.0
+"""m: no building a robot localizes in is wider; a map beyond it is in other units (mm, cm) or
+has a stray vertex, and would ask for grids of gigabytes."""
+
+MAX_GRID_CELLS = 100_000_000
+"""Cells of any grid built over a map or a log (a distance field, an occupancy grid): 500 m ×
+500 m at 5 cm, 400 MB of float32. More is refused before allocating, with the size named."""
+
+
+def check_grid_size(shape: tuple[int, int], cell: float, what: str) -> None:
+    """Raise :class:`MapError` naming ``what`` when a grid of ``shape`` exceeds MAX_GRID_CELLS."""
+    cells = int(shape[0]) * int(shape[1])
+    if cells > MAX_GRID_CELLS:
+        raise MapError(f"{what}: a {cell:g} m grid over it would need {shape[1]} × {shape[0]} "
+                       f"cells ({cells * 4 / 2**30:.1f} GiB), more than the "
+                       f"{MAX_GRID_CELLS:,} allowed (is it in metres?)")
+
+
 class MapError(ValueError):
     """A map file or map definition that cannot be used; the message names the file and entry."""
 
@@ -107,6 +125,7 @@ class SegmentMap:
         visibility_cell: float = 0.2,
     ) -> None:
         self.name = name
+        self.source = repr(name)  # what messages call it: its file when read from one
         self.starts = np.asarray(starts, dtype=float).reshape(-1, 2)
         self.ends = np.asarray(ends, dtype=float).reshape(-1, 2)
         n = len(self.starts)
@@ -120,11 +139,26 @@ class SegmentMap:
             bad = int(np.argmax(lengths < 1e-6))
             raise MapError(f"map {name!r}: segment {self.ids[bad]!r} has zero length")
         self.lengths = lengths
+        self._check_extent(name)
         self._merge_collinear(collinear_angle_tol, collinear_dist_tol)
         self._build_index(index_spacing)
         self.visibility_cell = visibility_cell
         self.landmarks: dict[str, tuple[float, float]] = {}
         self._visibility_cache: dict[tuple, NDArray[np.int32]] = {}
+
+    def _check_extent(self, name: str) -> None:
+        ends = np.concatenate((self.starts, self.ends))
+        if not np.isfinite(ends).all():
+            raise MapError(f"map {name!r}: non-finite coordinates")
+        centre = np.median(ends, axis=0)
+        far = np.abs(ends - centre).max(axis=1)
+        if far.max() > MAX_MAP_EXTENT / 2:
+            worst = int(np.argmax(far)) % len(self.starts)
+            span = ends.max(axis=0) - ends.min(axis=0)
+            raise MapError(f"map {name!r}: segment {self.ids[worst]!r} lies {far.max():.4g} m "
+                           f"from the map's centre (the map spans {span[0]:.4g} m × "
+                           f"{span[1]:.4g} m; at most {MAX_MAP_EXTENT:g} m is a building): "
+                           "coordinates must be in metres")
 
     # ---------------------------------------------------------------- construction
     @classmethod
@@ -157,8 +191,12 @@ class SegmentMap:
             if math.dist(a, b) < 1e-6:
                 raise MapError(f"map {source}: segment #{i} (id {ids[i]!r}): 'from' equals 'to'")
         kinds = [s.kind for s in spec.segments]
-        m = cls(starts, ends, kinds=kinds, ids=ids, name=spec.name)
+        try:
+            m = cls(starts, ends, kinds=kinds, ids=ids, name=spec.name)
+        except MapError as error:
+            raise MapError(f"map {source}: {str(error).split(': ', 1)[-1]}") from None
         m.landmarks = {lm.id: lm.at for lm in spec.landmarks}
+        m.source = source
         return m
 
     def to_dict(self) -> dict:

@@ -121,8 +121,13 @@ def _odometry(piece: Piece, _config: LocalizerConfig, _method: Method) -> Locali
 
 
 ICP_MAX_CORRESPONDENCE = 0.5
-"""m: a scan point pairs with a map point at most this far (a plain choice; 1 m pairs across
-doorways, 0.25 m loses the pose after a slip)."""
+"""m: a scan point pairs with a map point at most this far (1 m pairs across doorways: seattle
+then loses 83 % of its first 400 poses instead of 17 %)."""
+ICP_MAX_ITERATIONS = 100
+"""Point-to-point ICP turns slowly: with small_gicp's default of 20, steps of 1 m and 15° (scans
+kept as keyframes, 2–5 s apart) end mid-way (fhw's first 400 scans: 72 cm ATE, 4.3 cm with
+100). The pose after the last iteration is taken even when not converged: each iteration
+lowers the error."""
 
 
 def _icp(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
@@ -151,9 +156,10 @@ def _icp(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
             source = small_gicp.PointCloud(np.column_stack((pts, np.zeros(len(pts)))))
             result = small_gicp.align(target, source, tree, _se2_to_matrix(pose),
                                       registration_type="ICP",
-                                      max_correspondence_distance=ICP_MAX_CORRESPONDENCE)
+                                      max_correspondence_distance=ICP_MAX_CORRESPONDENCE,
+                                      max_iterations=ICP_MAX_ITERATIONS)
             found = _matrix_to_se2(result.T_target_source)
-            if result.converged and np.all(np.isfinite(found)):
+            if np.all(np.isfinite(found)):
                 pose = found
         t.append(scan_stamp(e))
         poses.append(pose)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import traceback
 from dataclasses import dataclass, field
@@ -58,7 +59,10 @@ class TaskResult:
 
 
 def run_task(task: Task) -> TaskResult:
-    """Localize and score one task; every failure becomes an error row."""
+    """Localize and score one task; every failure becomes an error row. The readers' and the
+    filter's warnings are not printed: a sweep's output is its rows."""
+    for name in ("fusion", "houghloc"):
+        logging.getLogger(name).setLevel(logging.ERROR)
     row: dict[str, Any] = {c: "" for c in COLUMNS}
     row.update(task_id=task.key, run=task.run.name, method=task.method.value,
                protocol=task.protocol.value, settings=settings_label(task.settings))

@@ -18,7 +18,7 @@ from fusion.events import Scan
 from fusion.io import open_log
 from fusion.io.files import atomic_write_bytes
 from houghloc.geometry import ranges_to_points, transform_points
-from houghloc.segment_map import MapError
+from houghloc.segment_map import MapError, check_grid_size
 
 # ROS map_server conventions (image values and thresholds).
 ROS_UNKNOWN, ROS_FREE, ROS_OCCUPIED = 205, 254, 0
@@ -196,6 +196,7 @@ def occupancy_from_scans(
     n_cols = math.ceil((corners[:, 0].max() + margin - origin[0]) / resolution)
     n_rows = math.ceil((corners[:, 1].max() + margin - origin[1]) / resolution)
     shape = (n_rows, n_cols)
+    check_grid_size(shape, resolution, _farthest_scan(scans))
 
     hit_count, hit_centroid = _count_hits(hits, origin, resolution, shape)
     pass_count = np.zeros(shape, dtype=np.int32)
@@ -209,6 +210,16 @@ def occupancy_from_scans(
     free = (pass_count > 0) & ~occupied & (probability < 0.5 * occupied_ratio)
     return OccupancyGrid(probability, occupied, free, float(resolution), origin,
                          hit_count, pass_count, hit_centroid)
+
+
+def _farthest_scan(scans: Sequence[Scan]) -> str:
+    """The scan whose reference pose lies farthest from the others' median, named by its line:
+    what to look at when the grid of a log is too large."""
+    poses = np.asarray([s.reference for s in scans], dtype=float)[:, :2]
+    k = int(np.argmax(np.linalg.norm(poses - np.median(poses, axis=0), axis=1)))
+    where = f"line {scans[k].line}" if scans[k].line is not None else f"t = {scans[k].t:g} s"
+    return (f"the scans' reference poses (the farthest, at {where}, is "
+            f"({poses[k, 0]:.4g}, {poses[k, 1]:.4g}))")
 
 
 @dataclass(frozen=True)
