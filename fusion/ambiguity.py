@@ -60,7 +60,7 @@ class State(StrEnum):
 class AmbiguityConfig(BaseModel):
     """When to stop trusting the tracker, and how to find the pose again."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     max_scans_without_fix: int = Field(
         5, ge=1, description="consecutive scans rejected, ambiguous or unmatched")

@@ -31,6 +31,22 @@ class CliError(Exception):
     """A problem the user can fix; printed without a traceback."""
 
 
+MAX_SIM_SECONDS = 1.0e6
+"""s: eleven days of simulated driving; a longer simulation is a typo."""
+
+
+def _duration(text: str) -> float:
+    """An argparse type: a finite, positive number of seconds, at most MAX_SIM_SECONDS."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not (math.isfinite(value) and 0 < value <= MAX_SIM_SECONDS):
+        raise argparse.ArgumentTypeError(
+            f"{text} s: a duration must be finite, positive and at most {MAX_SIM_SECONDS:g} s")
+    return value
+
+
 class _Stop:
     """The signal that interrupted the command: SIGTERM (what kill, timeout, systemd and CI
     send) is handled as Ctrl-C is, and the exit status says which (128 + its number)."""
@@ -94,7 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "three moving robots), localize it, write runs/demo/ and print "
                           "odometry-only vs fused accuracy.")
     demo.add_argument("--out", type=Path, default=Path("runs/demo"))
-    demo.add_argument("--duration", type=float, default=300.0, help="seconds (default 300)")
+    demo.add_argument("--duration", type=_duration, default=300.0,
+                      help="seconds (default 300)")
     demo.add_argument("--seed", type=int, default=0)
     _recording_options(demo)
     demo.set_defaults(func=cmd_demo)
@@ -126,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "scenario YAML")
     sim.add_argument("--out", required=True, type=Path)
     sim.add_argument("--seed", type=int, default=0)
-    sim.add_argument("--duration", type=float, help="seconds (default: the preset's)")
+    sim.add_argument("--duration", type=_duration, help="seconds (default: the preset's)")
     sim.set_defaults(func=cmd_sim)
 
     ev = sub.add_parser("eval", help="score a trajectory",

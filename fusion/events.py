@@ -97,9 +97,11 @@ class ReadStats:
     warnings: list[str] = field(default_factory=list)
     kinds: dict[str, list] = field(default_factory=dict)  # kind → [count, first message]
 
-    def warn(self, message: str, keep: int = 50, kind: str = "bad record") -> bool:
-        """Count a skipped record; True when it is the first of its kind."""
-        self.skipped += 1
+    def warn(self, message: str, keep: int = 50, kind: str = "bad record",
+             skipped: bool = True) -> bool:
+        """Count a warning (a skipped record, unless ``skipped`` is False: a record used with a
+        repair); True when it is the first of its kind."""
+        self.skipped += skipped
         if len(self.warnings) < keep:
             self.warnings.append(message)
         entry = self.kinds.setdefault(kind, [0, message])

@@ -98,6 +98,8 @@ class Localizer:
         self.logger = logger or NullLogger()
         fc = self.config.filter
         pose = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=float)
+        if initial_pose is not None:
+            self._check_initial_pose(pose)
         self.tracker = PoseTracker.from_config(fc, pose)
         self.stats = LocalizerStats()
         calibration = OdometryCalibration(fc.motion.translation_scale, fc.motion.rotation_scale)
@@ -111,6 +113,22 @@ class Localizer:
         if initial_pose is None:
             self.manager.start_lost(0.0, "no initial pose: global localization")
             self._start_reason = "no initial pose: global localization"
+
+    def _check_initial_pose(self, pose: NDArray[np.float64]) -> None:
+        """A ValueError for a pose that is no pose, or so far from the map that no sensor of
+        the robot could see any of it (a typo, or another map's frame)."""
+        if pose.shape != (3,) or not np.isfinite(pose).all():
+            raise ValueError(f"initial pose {pose.tolist()}: expected three finite numbers")
+        ends = np.concatenate((self.map.starts, self.map.ends))
+        low, high = ends.min(axis=0), ends.max(axis=0)
+        outside = float(np.linalg.norm(np.maximum(np.maximum(low - pose[:2], pose[:2] - high),
+                                                  0.0)))
+        reach = max(s.max_range for s in self.config.sensors.values())
+        if outside > reach:
+            raise ValueError(
+                f"initial pose ({pose[0]:g}, {pose[1]:g}) lies {outside:.1f} m outside the "
+                f"map {self.map.source} (x {low[0]:.1f}…{high[0]:.1f} m, y {low[1]:.1f}…"
+                f"{high[1]:.1f} m), beyond the sensors' {reach:g} m: no wall could be seen")
 
     @classmethod
     def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,

@@ -36,7 +36,7 @@ _ZERO_MOTION = 1e-12
 class OdometryMotionConfig(BaseModel):
     """Odometry noise and plausibility limits. Units: metres, radians, seconds."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     alpha1: float = Field(0.05, ge=0, description="rotation noise from rotation, rad per √rad")
     alpha2: float = Field(0.01, ge=0, description="rotation noise from translation, rad per √m")

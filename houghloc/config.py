@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import math
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+MAX_ACCUMULATOR_CELLS = 10_000_000
+"""Cells of one Hough accumulator (40 MB of int32): 0.1° × 1 cm to ±20 m is 1.4 million."""
 
 
 class HoughConfig(BaseModel):
@@ -13,7 +16,7 @@ class HoughConfig(BaseModel):
     The grid only needs to separate lines (DESIGN §3.2); precision comes from the refinement.
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     # --- grid and voting (§3.2)
     theta_step_deg: float = Field(3.0, gt=0.0, le=45.0)
@@ -74,6 +77,18 @@ class HoughConfig(BaseModel):
     max_observable_sigma: float = Field(
         0.5, gt=0.0, description="m; a direction known worse than this is reported unobservable"
     )
+
+    @model_validator(mode="after")
+    def _grid_fits_in_memory(self) -> HoughConfig:
+        # the accumulator holds θ over 2π and ρ over ±rho_max: refuse a grid of gigabytes
+        cells = math.ceil(360.0 / self.theta_step_deg) * (
+            2 * math.ceil(self.rho_max / self.rho_step) + 2 * self.rho_margin_cells)
+        if cells > MAX_ACCUMULATOR_CELLS:
+            raise ValueError(
+                f"the Hough grid would have {cells:,} cells (θ every {self.theta_step_deg:g}°, "
+                f"ρ every {self.rho_step:g} m to {self.rho_max:g} m), more than the "
+                f"{MAX_ACCUMULATOR_CELLS:,} allowed: coarsen theta_step_deg or rho_step")
+        return self
 
     @property
     def theta_step(self) -> float:

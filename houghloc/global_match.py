@@ -67,7 +67,7 @@ from houghloc.segment_map import MapError, References, SegmentMap, check_grid_si
 class GlobalMatchConfig(BaseModel):
     """Settings of global set matching. Angles in degrees in the names, radians inside."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     # --- hypotheses from pairs
     min_pair_angle_deg: float = Field(

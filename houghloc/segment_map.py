@@ -56,7 +56,7 @@ class MapError(ValueError):
 
 
 class _SegmentEntry(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
     id: str | None = None
     kind: SegmentKind = "wall"
     start: tuple[float, float] = Field(alias="from")
@@ -71,13 +71,13 @@ class _SegmentEntry(BaseModel):
 
 
 class _LandmarkEntry(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
     id: str
     at: tuple[float, float]
 
 
 class _MapFile(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     name: str = "unnamed"
     frame: str = "map"
     units: Literal["m"] = "m"

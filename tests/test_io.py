@@ -251,14 +251,15 @@ def test_nan_pose_and_garbage_lines_are_reported(tmp_path):
         "ODOM 0.1 abc 0 0 0 0 1.1 host 1.1",
         "@@@ this is not a record ###",
         "FLASER 7 1 2 3 0 0 0 0 0 0 1.1 host 1.1",  # says 7 beams, has 3
-        "FLASER 2 1 nan 0 0 0 0 0 0 1.1 host 1.1",  # NaN range
+        "FLASER 2 1 nan 0 0 0 0 0 0 1.1 host 1.1",  # NaN range: no return, the scan is used
         "UNKNOWNRECORD 1 2 3",  # an unknown record type: skipped silently
         *RAW_LOG[3:],
     ]
     log = read_carmen(write_log(tmp_path / "bad.log", lines))
     events = list(log)
-    assert len(events) == 5
-    assert log.stats.skipped == 5
+    assert len(events) == 6
+    assert events[1].ranges[1] == np.inf
+    assert log.stats.skipped == 4
     for number, text in zip(
         (4, 5, 6, 7, 8), ("non-finite", "non-numeric", "not a CARMEN", "needs", "NaN"), strict=True
     ):

@@ -361,7 +361,7 @@ class _CarmenParser:
     def _flaser(self, tokens: list[str], number: int) -> list[Event]:
         n = _count(tokens[1], "beam count")
         _need(tokens, 2 + n + 8, f"FLASER with {n} beams")
-        ranges = _ranges(tokens[2 : 2 + n])
+        ranges = self._valid_ranges(tokens[2 : 2 + n], number)
         pose = _pose(tokens, 2 + n)
         odom = _pose(tokens, 2 + n + 3)
         t = _time(tokens[2 + n + 6])
@@ -372,6 +372,15 @@ class _CarmenParser:
             t, ranges, angles, self.source.no_return_range, pose, odom, number
         )
 
+    def _valid_ranges(self, fields: list[str], number: int) -> NDArray[np.float64]:
+        ranges, invalid = _ranges(fields)
+        if invalid:
+            message = f"line {number}: {invalid} NaN or negative range(s) taken as no return"
+            first = self.stats.warn(message, kind="invalid range", skipped=False)
+            if first or self.stats.kinds["invalid range"][0] <= LOGGED_WARNINGS:
+                log.warning("%s: %s", self.source.path, message)
+        return ranges
+
     def _robotlaser1(self, tokens: list[str], number: int) -> list[Event]:
         _need(tokens, 10, "ROBOTLASER1")
         start, fov, resolution, max_range = (_number(v) for v in tokens[2:6])
@@ -380,7 +389,7 @@ class _CarmenParser:
         m = _count(tokens[9 + n], "remission count")
         k = 10 + n + m  # first field after the remissions
         _need(tokens, k + 13, f"ROBOTLASER1 with {n} beams and {m} remissions")
-        ranges = _ranges(tokens[9 : 9 + n])
+        ranges = self._valid_ranges(tokens[9 : 9 + n], number)
         robot = _pose(tokens, k + 3)
         t = _time(tokens[k + 11])
         angles = self._angles.get((start, resolution, n))
@@ -472,12 +481,13 @@ def _pose(tokens: list[str], start: int) -> NDArray[np.float64]:
     return np.array((x, y, theta))
 
 
-def _ranges(fields: list[str]) -> NDArray[np.float64]:
+def _ranges(fields: list[str]) -> tuple[NDArray[np.float64], int]:
+    """The ranges, with NaN and negative ones (invalid beams) made +inf, "no return", as the ROS
+    reader does with NaN (REP 117); and how many there were."""
     try:
         ranges = np.array(fields, dtype=float)
     except ValueError:
         raise _BadRecord("non-numeric range") from None
-    # +inf is a legitimate "no return" in converted logs; NaN or a negative range is corruption.
-    if np.isnan(ranges).any() or (ranges < 0).any():
-        raise _BadRecord("NaN or negative range")
-    return ranges
+    invalid = np.isnan(ranges) | (ranges < 0)
+    ranges[invalid] = np.inf
+    return ranges, int(invalid.sum())
