@@ -11,6 +11,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+MAX_POSE_COORDINATE = 1.0e6
+"""A pose farther than this from its frame's origin (m), or turned further (rad: 160,000
+turns), is no robot's: readers skip such a record, the Localizer drops such a reading."""
+
 
 @dataclass(frozen=True, slots=True)
 class Odometry:

@@ -21,6 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 from fusion.ambiguity import AmbiguityManager, State
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
+from fusion.events import MAX_POSE_COORDINATE
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
 from fusion.scan_odometry import ScanOdometry
@@ -32,12 +33,6 @@ from houghloc.localize import clean_points
 
 log = logging.getLogger(__name__)
 LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them all
-
-MAX_ODOMETRY_COORDINATE = 1.0e6
-"""Odometry farther than this from its origin (m), or turned further (rad: 160,000 turns), is no
-robot's; at such magnitudes a float's resolution is worse than a nanometre's tolerance of 1e-10
-relative anyway."""
-
 
 @dataclass(frozen=True, slots=True)
 class Estimate:
@@ -153,10 +148,10 @@ class Localizer:
         Time (:mod:`fusion.io.timing`): a reading more than ``MAX_TIME_STEP`` after the previous
         one is held until the next confirms it (at or after it) or shows it a stray stamp
         (before it: dropped and counted in ``stats.stray_timestamps``). A reading that cannot be
-        a pose (non-finite, or beyond ``MAX_ODOMETRY_COORDINATE``) is dropped and counted; the
+        a pose (non-finite, or beyond ``MAX_POSE_COORDINATE``) is dropped and counted; the
         chain continues from the last good reading."""
         if not (all(map(math.isfinite, (t, x, y, theta)))
-                and max(abs(x), abs(y), abs(theta)) <= MAX_ODOMETRY_COORDINATE):
+                and max(abs(x), abs(y), abs(theta)) <= MAX_POSE_COORDINATE):
             self.stats.invalid_odometry += 1
             if self.stats.invalid_odometry <= LOGGED_WARNINGS:
                 log.warning("odometry at t = %s cannot be a pose (%s, %s, %s): dropped, the chain "
@@ -226,7 +221,10 @@ class Localizer:
             return self._finish(t if math.isfinite(t) else (clock or 0.0), "dropped", None,
                                 None, sensor, np.empty((0, 2)))
         # NaN/inf points are no returns; every stage below (scan odometry too) gets finite ones
-        points = _to_base(clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0], cfg)
+        points = clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0]
+        # a point beyond the sensor's range is no measurement of it (and 1e300 would overflow
+        # every stage after): the same rule as for a scan's ranges
+        points = _to_base(points[np.hypot(points[:, 0], points[:, 1]) < cfg.max_range], cfg)
         if self.scan_odometry is not None and sensor == self.scan_odometry.config.sensor:
             self._correct_odometry(t, points)
         if self.manager.state is not State.TRACKING:

@@ -262,3 +262,40 @@ def test_the_initial_pose_is_the_pose_at_the_first_scan(office, tmp_path):
             str(start[1]), str(start[2]), str(yaw)]
     assert main(args) == 0
     assert _ate(out, office["gt"]) < 0.02
+
+
+def test_a_gzip_corrupted_mid_stream_says_so_whatever_the_warning_cap(office, tmp_path, capsys,
+                                                                     caplog):
+    import gzip
+
+    lines = list(office["lines"])
+    for k in range(1, 60):  # sixty bad records first: the cap on warnings is long spent
+        lines.insert(100 * k, "ODOM not a number at all")
+    data = gzip.compress(("\n".join(lines) + "\n").encode())
+    path = tmp_path / "cut.log.gz"
+    path.write_bytes(data[: len(data) // 2] + bytes(64) + data[len(data) // 2 + 64:])
+    out = tmp_path / "o"
+    assert main(_run(office, path, out)) == 0
+    text = capsys.readouterr().err + caplog.text
+    assert "stream ends early" in text and "the rest is lost" in text
+    kinds = json.loads((out / "metrics.json").read_text())["log"]["warnings_by_kind"]
+    assert kinds["stream ends early"]["count"] == 1
+    assert kinds["bad record"]["count"] >= 20
+
+
+def test_map_build_takes_negative_stamps(office, tmp_path):
+    import dataclasses
+
+    from fusion.events import Scan
+    from fusion.io import open_log
+    from fusion.mapping import segment_map_from_scans
+
+    gt = Trajectory.from_tum(office["gt"])
+    shifted = _write(tmp_path / "neg.log",
+                     _restamp(office["lines"], lambda k, rec, t: t - 1000.0))
+    events, _ = open_log(shifted)
+    scans = [dataclasses.replace(e, reference=tuple(gt.poses[np.argmin(np.abs(gt.t - e.t - 1000))]))
+             for e in events if isinstance(e, Scan)]
+    assert min(s.t for s in scans) < -900
+    _, segment_map = segment_map_from_scans(scans)
+    assert len(segment_map) > 10

@@ -50,7 +50,7 @@ from typing import TextIO
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.events import Event, Odometry, ReadStats, Scan, Truth
+from fusion.events import MAX_POSE_COORDINATE, Event, Odometry, ReadStats, Scan, Truth
 from fusion.io.errors import LogError
 from fusion.io.textfile import open_text_log
 from houghloc.geometry import compose, relative
@@ -200,8 +200,9 @@ def read_carmen(
 
 
 def _reset(stats: ReadStats) -> None:
-    stats.records = stats.skipped = stats.backwards_timestamps = 0
+    stats.records = stats.skipped = stats.backwards_timestamps = stats.stray_timestamps = 0
     stats.warnings.clear()
+    stats.kinds.clear()
 
 
 def _sniff(path: Path) -> CarmenConventions:
@@ -290,7 +291,7 @@ class _CarmenParser:
                     continue
                 self.stats.records += 1
                 for event in produced:
-                    self._check_order(event.t)
+                    self._check_order(event.t, number)
                     emitted += 1
                     yield event
         except (OSError, EOFError) as err:  # a truncated or corrupt gzip stream
@@ -311,9 +312,13 @@ class _CarmenParser:
         if self.stats.skipped <= LOGGED_WARNINGS or first:
             log.warning("%s: %s", self.source.path, message)
 
-    def _check_order(self, t: float) -> None:
+    def _check_order(self, t: float, number: int) -> None:
         if self._last_t is not None and t < self._last_t:
             self.stats.backwards_timestamps += 1
+            message = (f"line {number}: stamp {t:.6g} s is {self._last_t - t:.3g} s behind the "
+                       "record before it (odometry older than the newest is not used)")
+            if self.stats.warn(message, kind="backwards timestamp", skipped=False):
+                log.warning("%s: %s", self.source.path, message)
         self._last_t = t
 
     # -- records --------------------------------------------------------------------------------
@@ -478,6 +483,9 @@ def _pose(tokens: list[str], start: int) -> NDArray[np.float64]:
         raise _BadRecord(f"non-numeric pose {' '.join(tokens[start : start + 3])[:40]!r}") from None
     if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(theta)):
         raise _BadRecord(f"non-finite pose {' '.join(tokens[start : start + 3])!r}")
+    if max(abs(x), abs(y), abs(theta)) > MAX_POSE_COORDINATE:
+        raise _BadRecord(f"pose {x:g} {y:g} {theta:g} beyond {MAX_POSE_COORDINATE:g}: "
+                         "no robot's")
     return np.array((x, y, theta))
 
 
