@@ -299,3 +299,91 @@ def test_map_build_takes_negative_stamps(office, tmp_path):
     assert min(s.t for s in scans) < -900
     _, segment_map = segment_map_from_scans(scans)
     assert len(segment_map) > 10
+
+
+# -- inputs that would need unbounded memory, values no config can mean --------------------------
+def _scaled_map(office, tmp_path, factor: float) -> Path:
+    import yaml
+
+    raw = yaml.safe_load(Path(office["map"]).read_text())
+    for seg in raw["segments"]:
+        seg["from"] = [v * factor for v in seg["from"]]
+        seg["to"] = [v * factor for v in seg["to"]]
+    path = tmp_path / f"map-x{factor:g}.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+@pytest.mark.parametrize(("factor", "says"), [(1000.0, "coordinates must be in metres"),
+                                              (100.0, "cells")])
+def test_a_map_in_other_units_is_one_line_naming_it(office, tmp_path, capsys, factor, says):
+    import resource
+
+    path = _scaled_map(office, tmp_path, factor)
+    args = ["run", "--map", str(path), "--log", str(office["log"]), "--out",
+            str(tmp_path / "o"), "--no-rerun", "--no-progress", "--initial-pose",
+            str(float(office["start"][0]) * factor), str(float(office["start"][1]) * factor), "0"]
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and says in err, err
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 500_000  # kB
+
+
+def test_ten_thousand_random_segments_are_refused_before_allocating(office, tmp_path):
+    from houghloc import SegmentMap
+    from houghloc.segment_map import MapError
+
+    rng = np.random.default_rng(0)
+    starts = rng.uniform(0, 100, (10_000, 2))
+    m = SegmentMap(starts, starts + rng.uniform(-3, 3, (10_000, 2)), name="random")
+    from fusion.localizer import Localizer
+
+    loc = Localizer(m, None, (50.0, 50.0, 0.0))  # the parallel spacing: linear memory
+    with pytest.raises(MapError, match="oriented pairs"):
+        from houghloc.global_match import angle_index
+
+        angle_index(loc.map, ("wall",), 0.3, 0.1)
+
+
+def test_map_build_with_a_pose_ten_km_off_names_the_scan(tmp_path):
+    from fusion.events import Scan
+    from fusion.mapping import GridMapError, occupancy_from_scans
+    from houghloc.segment_map import MapError
+
+    angles = np.linspace(-np.pi / 2, np.pi / 2, 91)
+    scans = [Scan(float(k), np.full(91, 3.0), angles, reference=(0.1 * k, 0.0, 0.0), line=k + 1)
+             for k in range(20)]
+    scans[7] = Scan(7.0, np.full(91, 3.0), angles, reference=(10_000.0, 10_000.0, 0.0), line=8)
+    with pytest.raises((MapError, GridMapError), match="line 8"):
+        occupancy_from_scans(scans)
+
+
+@pytest.mark.parametrize(("setting", "field"), [
+    ({"filter": {"motion": {"alpha1": math.inf}}}, "filter.motion.alpha1"),
+    ({"sensors": {"laser": {"mount": [0, math.nan, 0]}}}, "sensors.laser.mount.1"),
+    ({"sensors": {"laser": {"hough": {"rho_step": math.inf}}}}, "sensors.laser.hough.rho_step"),
+    ({"sensors": {"laser": {"hough": {"theta_step_deg": 1e-6}}}}, "sensors.laser.hough"),
+])
+def test_configs_refuse_non_finite_and_absurd_values_by_field(setting, field):
+    from fusion.config import ConfigError, LocalizerConfig
+
+    with pytest.raises(ConfigError, match=field.replace(".", r"\.")):
+        LocalizerConfig.from_dict(setting, source="c.yaml")
+
+
+@pytest.mark.parametrize("duration", ["0", "inf", "nan", "-1", "1e9"])
+def test_sim_duration_is_one_clear_line(tmp_path, capsys, duration):
+    with pytest.raises(SystemExit) as stop:
+        main(["sim", "--out", str(tmp_path / "s"), "--duration", duration])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "--duration" in err[-1] and "Traceback" not in "\n".join(err)
+
+
+def test_an_initial_pose_far_outside_the_map_is_refused(office, tmp_path, capsys):
+    args = ["run", "--map", str(office["map"]), "--log", str(office["log"]), "--out",
+            str(tmp_path / "o"), "--no-rerun", "--initial-pose", "1000", "6", "0"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "outside the map" in err and str(office["map"]) in err

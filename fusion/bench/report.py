@@ -41,10 +41,47 @@ def _pct(v: float) -> str:
     return "–" if not math.isfinite(v) else f"{100 * v:.1f} %"
 
 
+def matrix_markdown(rows: Sequence[dict[str, Any]]) -> str:
+    """The compact view: per protocol, a row per log and a column per method, each cell
+    "ATE RMSE · lost % (over covered poses) · CPU ms per scan"; for global starts, the time
+    until right and staying right."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    labels = sorted({_label(r) for r in ok}, key=lambda m: (m != "houghloc", m))
+    out = io.StringIO()
+    for protocol in Protocol:
+        these = {(r["run"], _label(r)): r for r in ok if r["protocol"] == protocol.value}
+        if not these:
+            continue
+        methods = [m for m in labels if any(k[1] == m for k in these)]
+        runs = sorted({k[0] for k in these})
+        out.write(f"\n**{protocol.value}**\n\n| log | " + " | ".join(methods) + " |\n|---|"
+                  + "---|" * len(methods) + "\n")
+        for run in runs:
+            cells = []
+            for m in methods:
+                r = these.get((run, m))
+                if r is None:
+                    cells.append("")
+                elif protocol is Protocol.GLOBAL_START:
+                    t = _f(r, "global_time_s")
+                    cells.append("never" if not math.isfinite(t) else f"{t:.0f} s")
+                else:
+                    lost = _pct(_f(r, "lost_frac"))
+                    if protocol is Protocol.HELD_OUT_MAP:
+                        lost += f" ({_pct(_f(r, 'lost_covered_frac'))})"
+                    cells.append(f"{_length(_f(r, 'ate_rmse_m'))} · {lost} · "
+                                 f"{_f(r, 'cpu_ms_per_scan'):.2g} ms")
+            out.write(f"| {run} | " + " | ".join(cells) + " |\n")
+    return out.getvalue()
+
+
 def summary_markdown(rows: Sequence[dict[str, Any]]) -> str:
     ok = [r for r in rows if r.get("status") == "ok"]
     out = io.StringIO()
     out.write("# Benchmark summary\n\n")
+    out.write("Each cell: ATE RMSE · lost % (held out: over covered poses in brackets) · CPU "
+              "per scan.\n")
+    out.write(matrix_markdown(rows))
     out.write(f"Lost: more than {LOST_POSITION} m or {LOST_HEADING_DEG:g}° from the reference. "
               f"Covered: at least {COVERED_SHARE:.0%} of the scan's points, at the reference "
               f"pose, within {COVERED_DISTANCE * 100:.0f} cm of the points the map was built "
