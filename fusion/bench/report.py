@@ -37,6 +37,12 @@ def _length(v: float) -> str:
     return f"{100 * v:.1f} cm" if v < 1 else f"{v:.2f} m"
 
 
+def _ms(v: float) -> str:
+    if not math.isfinite(v):
+        return "–"
+    return f"{v:.0f} ms" if v >= 10 else f"{v:.1f} ms" if v >= 1 else f"{v:.2f} ms"
+
+
 def _pct(v: float) -> str:
     return "–" if not math.isfinite(v) else f"{100 * v:.1f} %"
 
@@ -70,7 +76,7 @@ def matrix_markdown(rows: Sequence[dict[str, Any]]) -> str:
                     if protocol is Protocol.HELD_OUT_MAP:
                         lost += f" ({_pct(_f(r, 'lost_covered_frac'))})"
                     cells.append(f"{_length(_f(r, 'ate_rmse_m'))} · {lost} · "
-                                 f"{_f(r, 'cpu_ms_per_scan'):.2g} ms")
+                                 f"{_ms(_f(r, 'cpu_ms_per_scan'))}")
             out.write(f"| {run} | " + " | ".join(cells) + " |\n")
     return out.getvalue()
 
@@ -162,8 +168,9 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> Path | None:
                 ax.set_yscale("log")
             ax.grid(True, axis="y", linewidth=0.3)
             if i == 0 and j == 0:
-                ax.legend(fontsize=7)
-    fig.tight_layout()
+                handles, names = ax.get_legend_handles_labels()
+    fig.legend(handles, names, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     return atomic_write_bytes(path, buffer.getvalue())
