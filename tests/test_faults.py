@@ -17,6 +17,7 @@ import pytest
 from fusion.cli import main
 from fusion.evaluation import ATE, Trajectory
 from fusion.sim import scenario_preset, simulate, write_run
+from tests.data.faults.make_corpus import restamp
 
 BIN = Path(sys.executable).parent
 
@@ -87,27 +88,6 @@ def test_a_run_that_ends_lost_says_so_and_strict_fails_it(office, tmp_path, caps
 
 
 # -- time: stray, repeated, coarse, zero and negative stamps ------------------------------------
-STAMP_FIELD = {"ODOM": 7}  # ROBOTLASER1's stamp is the third field from the end
-
-
-def _stamp_index(tokens: list[str]) -> int:
-    return STAMP_FIELD.get(tokens[0], len(tokens) - 3)
-
-
-def _restamp(lines: list[str], change) -> list[str]:
-    """``change(k, kind, t)`` gives record k's new stamp (None: unchanged)."""
-    out = []
-    for k, line in enumerate(lines):
-        tokens = line.split()
-        if tokens and tokens[0] in ("ODOM", "ROBOTLASER1"):
-            i = _stamp_index(tokens)
-            new = change(k, tokens[0], float(tokens[i]))
-            if new is not None:
-                tokens[i] = tokens[-1] = new if isinstance(new, str) else f"{new:.6f}"
-        out.append(" ".join(tokens))
-    return out
-
-
 def _write(path: Path, lines: list[str]) -> Path:
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -128,7 +108,7 @@ def test_one_future_timestamp_is_dropped_with_its_line(office, clean_ate, tmp_pa
                                                        caplog):
     lines = office["lines"]
     odom, laser = _record(lines, "ODOM", 250), _record(lines, "ROBOTLASER1", 100)
-    damaged = _restamp(lines, lambda k, kind, t: t + 100.0 if k == odom
+    damaged = restamp(lines, lambda k, kind, t: t + 100.0 if k == odom
                        else ("1e300" if k == laser else None))
     out = tmp_path / "o"
     assert main(_run(office, _write(tmp_path / "f.log", damaged), out)) == 0
@@ -184,7 +164,7 @@ def test_repeated_and_coarse_odometry_stamps_keep_their_motion(office, clean_ate
         return round(t, 1)  # every stamp rounded to 0.1 s, as %g logs do late in a run
 
     out = tmp_path / "o"
-    assert main(_run(office, _write(tmp_path / f"{kind}.log", _restamp(lines, change)),
+    assert main(_run(office, _write(tmp_path / f"{kind}.log", restamp(lines, change)),
                      out)) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["odometry_jumps"] == 0
@@ -194,7 +174,7 @@ def test_repeated_and_coarse_odometry_stamps_keep_their_motion(office, clean_ate
 
 
 def test_all_zero_stamps_still_carry_the_odometry(office, tmp_path):
-    zero = _restamp(office["lines"], lambda k, rec, t: 0.0)
+    zero = restamp(office["lines"], lambda k, rec, t: 0.0)
     out = tmp_path / "o"
     assert main(_run(office, _write(tmp_path / "zero.log", zero), out)) == 0
     poses = np.loadtxt(out / "trajectory.tum")[:, 1:3]
@@ -204,7 +184,7 @@ def test_all_zero_stamps_still_carry_the_odometry(office, tmp_path):
 
 
 def test_negative_stamps_are_ordinary_times(office, clean_ate, tmp_path):
-    shifted = _restamp(office["lines"], lambda k, rec, t: t - 1000.0)
+    shifted = restamp(office["lines"], lambda k, rec, t: t - 1000.0)
     gt = np.loadtxt(office["gt"])
     gt[:, 0] -= 1000.0
     np.savetxt(tmp_path / "gt.tum", gt)
@@ -292,7 +272,7 @@ def test_map_build_takes_negative_stamps(office, tmp_path):
 
     gt = Trajectory.from_tum(office["gt"])
     shifted = _write(tmp_path / "neg.log",
-                     _restamp(office["lines"], lambda k, rec, t: t - 1000.0))
+                     restamp(office["lines"], lambda k, rec, t: t - 1000.0))
     events, _ = open_log(shifted)
     scans = [dataclasses.replace(e, reference=tuple(gt.poses[np.argmin(np.abs(gt.t - e.t - 1000))]))
              for e in events if isinstance(e, Scan)]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -103,7 +104,9 @@ class _DeadReckoning:
         return relative(previous, self.last)
 
 
-def _odometry(piece: Piece, _config: LocalizerConfig, _method: Method) -> Localized:
+def _predict_and_correct(piece: Piece, correct: Callable[[NDArray[np.float64], Scan],
+                                                         NDArray[np.float64]]) -> Localized:
+    """Each scan's pose: the last estimate moved by the odometry since, then ``correct``-ed."""
     assert piece.start is not None
     odom = _DeadReckoning()
     pose = piece.start.copy()
@@ -113,11 +116,15 @@ def _odometry(piece: Piece, _config: LocalizerConfig, _method: Method) -> Locali
         if isinstance(e, Odometry):
             odom.on_odometry(e)
         elif isinstance(e, Scan):
-            pose = compose(pose, odom.step())
+            pose = correct(compose(pose, odom.step()), e)
             t.append(scan_stamp(e))
             poses.append(pose)
     return Localized(Trajectory(t, np.asarray(poses).reshape(-1, 3)),
                      time.process_time() - cpu)
+
+
+def _odometry(piece: Piece, _config: LocalizerConfig, _method: Method) -> Localized:
+    return _predict_and_correct(piece, lambda pose, _scan: pose)
 
 
 ICP_MAX_CORRESPONDENCE = 0.5
@@ -135,36 +142,24 @@ def _icp(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
         import small_gicp
     except ImportError:
         raise MissingPeer("icp needs small_gicp: pip install 'houghloc[peers]'") from None
-    assert piece.start is not None
     sensor = _laser(config)
     target_xy = piece.map_source.points
     target = small_gicp.PointCloud(np.column_stack((target_xy, np.zeros(len(target_xy)))))
     tree = small_gicp.KdTree(target)
-    odom = _DeadReckoning()
-    pose = piece.start.copy()
-    t, poses = [], []
-    cpu = time.process_time()
-    for e in piece.events:
-        if isinstance(e, Odometry):
-            odom.on_odometry(e)
-            continue
-        if not isinstance(e, Scan):
-            continue
-        pose = compose(pose, odom.step())
-        pts = _base_points(e, sensor)
-        if len(pts) >= 10:
-            source = small_gicp.PointCloud(np.column_stack((pts, np.zeros(len(pts)))))
-            result = small_gicp.align(target, source, tree, _se2_to_matrix(pose),
-                                      registration_type="ICP",
-                                      max_correspondence_distance=ICP_MAX_CORRESPONDENCE,
-                                      max_iterations=ICP_MAX_ITERATIONS)
-            found = _matrix_to_se2(result.T_target_source)
-            if np.all(np.isfinite(found)):
-                pose = found
-        t.append(scan_stamp(e))
-        poses.append(pose)
-    return Localized(Trajectory(t, np.asarray(poses).reshape(-1, 3)),
-                     time.process_time() - cpu)
+
+    def align(pose: NDArray[np.float64], scan: Scan) -> NDArray[np.float64]:
+        pts = _base_points(scan, sensor)
+        if len(pts) < 10:
+            return pose
+        source = small_gicp.PointCloud(np.column_stack((pts, np.zeros(len(pts)))))
+        result = small_gicp.align(target, source, tree, _se2_to_matrix(pose),
+                                  registration_type="ICP",
+                                  max_correspondence_distance=ICP_MAX_CORRESPONDENCE,
+                                  max_iterations=ICP_MAX_ITERATIONS)
+        found = _matrix_to_se2(result.T_target_source)
+        return found if np.all(np.isfinite(found)) else pose
+
+    return _predict_and_correct(piece, align)
 
 
 def _se2_to_matrix(pose: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -25,7 +25,10 @@ def _stamp_index(tokens: list[str]) -> int:
     return 7 if tokens[0] == "ODOM" else len(tokens) - 3
 
 
-def _restamp(lines: list[str], change: Callable[[int, str, float], str | None]) -> list[str]:
+def restamp(lines: list[str],
+            change: Callable[[int, str, float], str | float | None]) -> list[str]:
+    """The CARMEN lines with ``change(k, kind, t)`` as the stamp of record k (of its ODOM and
+    ROBOTLASER1 records; None: unchanged; a float is printed to the microsecond)."""
     out = []
     for k, line in enumerate(lines):
         tokens = line.split()
@@ -33,7 +36,7 @@ def _restamp(lines: list[str], change: Callable[[int, str, float], str | None]) 
             i = _stamp_index(tokens)
             new = change(k, tokens[0], float(tokens[i]))
             if new is not None:
-                tokens[i] = tokens[-1] = new
+                tokens[i] = tokens[-1] = new if isinstance(new, str) else f"{new:.6f}"
         out.append(" ".join(tokens))
     return out
 
@@ -63,14 +66,14 @@ def faults(lines: list[str]) -> dict[str, list[str] | bytes]:
     escape = _set_field(lines, laser, 0, "ROBOTLASER1\x1b[31mred")
     return {
         "clean": lines,
-        "future-odometry-stamp": _restamp(lines, lambda k, kind, t: (
+        "future-odometry-stamp": restamp(lines, lambda k, kind, t: (
             f"{t + 100.0:.6f}" if k == odom else None)),
-        "laser-stamp-1e300": _restamp(lines, lambda k, kind, t: "1e300" if k == laser else None),
-        "repeated-odometry-stamps": _restamp(lines, repeated),
-        "coarse-stamps": _restamp(lines, lambda k, kind, t: f"{round(t, 1):.1f}"),
+        "laser-stamp-1e300": restamp(lines, lambda k, kind, t: "1e300" if k == laser else None),
+        "repeated-odometry-stamps": restamp(lines, repeated),
+        "coarse-stamps": restamp(lines, lambda k, kind, t: f"{round(t, 1):.1f}"),
         "backwards-stamps": backwards,
-        "negative-stamps": _restamp(lines, lambda k, kind, t: f"{t - 1000.0:.6f}"),
-        "zero-stamps": _restamp(lines, lambda k, kind, t: "0"),
+        "negative-stamps": restamp(lines, lambda k, kind, t: f"{t - 1000.0:.6f}"),
+        "zero-stamps": restamp(lines, lambda k, kind, t: "0"),
         "absurd-odometry": _set_field(lines, odom, 1, "-1e300"),
         "nan-odometry": _set_field(lines, odom, 3, "nan"),
         "nan-beam": _set_field(lines, laser, 20, "nan"),
