@@ -166,7 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
         "write DIR/results.csv (a row per task, appended as each finishes), DIR/summary.md, "
         "DIR/summary.png and DIR/trajectories/. A re-run with the same DIR skips the tasks "
         "already there. Methods: houghloc, odometry, icp, amcl, amcl-tuned (the peers need "
-        "pip install 'houghloc[peers]'). Protocols: same-run, held-out-map, global-start.")
+        "pip install 'houghloc[peers]'), mrpt (Debian mrpt-apps). Protocols: same-run, "
+        "held-out-map, global-start.")
     sw.add_argument("--spec", required=True, type=Path, help="the sweep spec (YAML)")
     sw.add_argument("--out", required=True, type=Path, help="output directory")
     sw.add_argument("--scheduler", metavar="tcp://HOST:PORT",
@@ -236,7 +237,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     write_metrics(args.out / "metrics.json", doc)
     _serve_until_interrupted(args, logger)
     logger.close()
-    print(run_summary(result, loc))
+    summary, warned = run_summary(result, loc)
+    print(summary)
+    for text in warned:
+        print(f"houghloc: warning: {text}", file=sys.stderr)
     for kind, info in (read_stats.by_kind().items() if read_stats is not None else ()):
         print(f"houghloc: warning: {args.log}: {info['count']} × {kind} (first: "
               f"{info['first']})", file=sys.stderr)
@@ -246,7 +250,7 @@ def cmd_run(args: argparse.Namespace) -> int:
           + ("" if args.no_rerun else f", {args.out / 'run.rrd'}"))
     if result.interrupted:
         return _Stop.exit_code()
-    if args.strict and not localized_enough(loc):
+    if args.strict and not loc.localized:
         print("houghloc: --strict: the run was not localized (see above)", file=sys.stderr)
         return EXIT_NOT_LOCALIZED
     return 0
@@ -338,35 +342,20 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_summary(result: Any, loc: Any) -> str:
-    """What became of the scans, in words: how many, how fast, by status, and whether the run
-    ended localized."""
+def run_summary(result: Any, loc: Any) -> tuple[str, list[str]]:
+    """What became of the scans, in words (how many, how fast, by status), and the warnings
+    when the run did not end localized."""
     statuses = ", ".join(f"{k} {v}" for k, v in sorted(loc.stats.statuses.items(),
                                                         key=lambda kv: -kv[1]))
     text = (f"{result.scans} scans in {result.seconds['total']:.1f} s "
             f"({result.scans_per_second:.0f} scans/s); by status: {statuses or 'none'}")
-    tracked = tracked_fraction(loc)
+    warned = []
     if loc.manager.state.value != "tracking":
-        text += (f"\nhoughloc: warning: the run ended {loc.manager.state.value}: not localized "
-                 f"at the end")
-    if tracked < 0.5 and result.scans:
-        text += (f"\nhoughloc: warning: only {100 * tracked:.0f} % of the scans were localized "
-                 "(tracking)")
-    return text
-
-
-def tracked_fraction(loc: Any) -> float:
-    """The share of scans that ended in tracking (a fix used or not, but the pose trusted)."""
-    from fusion.ambiguity import State
-
-    untracked = {s.value for s in State if s is not State.TRACKING} | {"relocalized"}
-    total = sum(loc.stats.statuses.values())
-    lost = sum(v for k, v in loc.stats.statuses.items() if k in untracked)
-    return 1.0 - lost / total if total else 0.0
-
-
-def localized_enough(loc: Any) -> bool:
-    return loc.manager.state.value == "tracking" and tracked_fraction(loc) >= 0.5
+        warned.append(f"the run ended {loc.manager.state.value}: not localized at the end")
+    if loc.stats.tracked_fraction < 0.5 and result.scans:
+        warned.append(f"only {100 * loc.stats.tracked_fraction:.0f} % of the scans were "
+                      "localized (tracking)")
+    return text, warned
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

@@ -34,6 +34,7 @@ from houghloc.localize import clean_points
 log = logging.getLogger(__name__)
 LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them all
 
+
 @dataclass(frozen=True, slots=True)
 class Estimate:
     """The pose at a measurement's time after using it, and what happened to the measurement."""
@@ -61,6 +62,15 @@ class LocalizerStats:
     invalid_odometry: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=lambda: {"hough": 0.0, "update": 0.0})
+
+    @property
+    def tracked_fraction(self) -> float:
+        """The share of scans that ended while tracking (a fix used or not, the pose trusted);
+        the rest ended collecting views, relocalizing or lost."""
+        untracked = {s.value for s in State if s is not State.TRACKING} | {"relocalized"}
+        total = sum(self.statuses.values())
+        lost = sum(v for k, v in self.statuses.items() if k in untracked)
+        return 1.0 - lost / total if total else 0.0
 
     @property
     def accepted(self) -> int:
@@ -133,6 +143,11 @@ class Localizer:
         return cls(map, cfg, initial_pose, logger)
 
     @property
+    def localized(self) -> bool:
+        """Tracking at the end, and for at least half of the scans: the run can be trusted."""
+        return self.manager.state is State.TRACKING and self.stats.tracked_fraction >= 0.5
+
+    @property
     def pose(self) -> NDArray[np.float64]:
         return self.tracker.pose
 
@@ -168,7 +183,7 @@ class Localizer:
                     log.warning("odometry at t = %s jumped ahead of the readings before and "
                                 "after it (t = %s): dropped", held[0], t)
         clock = self.tracker.odometry_time
-        if clock is not None and t - clock > MAX_TIME_STEP and held is None:
+        if clock is not None and t - clock > MAX_TIME_STEP:
             self._held_odometry = reading
             return
         self._use_odometry(*reading)

@@ -202,6 +202,8 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
                   "ambiguous": stats.ambiguous, "no_fix": stats.no_fix,
                   "partial_rank": stats.partial_rank, "late": stats.late},
         "statuses": dict(stats.statuses),
+        "tracked_fraction": round(stats.tracked_fraction, 6),
+        "localized": localizer.localized,
         "ambiguity": localizer.manager.summary(),
         "seconds": {k: round(v, 6) for k, v in result.seconds.items()},
         "time_per_scan_ms": {

@@ -68,10 +68,11 @@ def test_sigterm_leaves_valid_outputs_and_exits_143(office, tmp_path):
 
 def test_the_summary_counts_scans_without_ground_truth(office, tmp_path, capsys):
     assert main(_run(office, office["log"], tmp_path / "o")) == 0
-    printed = capsys.readouterr().out
+    printed, err = capsys.readouterr()
     scans = sum(line.startswith("ROBOTLASER1") for line in office["lines"])
     assert printed.startswith(f"{scans} scans in ")
-    assert "by status: accepted" in printed and "warning" not in printed
+    assert "by status: accepted" in printed
+    assert "warning" not in err
 
 
 def test_a_run_that_ends_lost_says_so_and_strict_fails_it(office, tmp_path, capsys):
@@ -80,8 +81,9 @@ def test_a_run_that_ends_lost_says_so_and_strict_fails_it(office, tmp_path, caps
     args = ["run", "--map", str(robocup), "--log", str(office["log"]), "--no-rerun",
             "--no-progress"]
     assert main([*args, "--out", str(tmp_path / "a")]) == 0
-    printed = capsys.readouterr().out
-    assert "not localized at the end" in printed or "of the scans were localized" in printed
+    err = capsys.readouterr().err
+    assert "not localized at the end" in err or "of the scans were localized" in err
+    assert json.loads((tmp_path / "a" / "metrics.json").read_text())["localized"] is False
     assert main([*args, "--out", str(tmp_path / "b"), "--strict"]) == 3
     assert "--strict" in capsys.readouterr().err
     assert main(_run(office, office["log"], tmp_path / "c", "--strict")) == 0

@@ -140,13 +140,7 @@ def _quiet(progress: bool | None) -> bool | None:
 
 
 def _error_result(task: Task, message: str) -> TaskResult:
-    from fusion.bench.spec import settings_label
-
-    row = {c: "" for c in COLUMNS}
-    row.update(task_id=task.key, run=task.run.name, method=task.method.value,
-               protocol=task.protocol.value, settings=settings_label(task.settings),
-               status="error", error=message)
-    return TaskResult(row)
+    return TaskResult(task.blank_row() | {"status": "error", "error": message})
 
 
 def _append(out: Path, result: TaskResult) -> None:

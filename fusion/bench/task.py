@@ -47,6 +47,13 @@ class Task:
                "max_dt": self.max_dt}
         return hashlib.sha1(json.dumps(doc, sort_keys=True).encode()).hexdigest()[:16]
 
+    def blank_row(self) -> dict[str, Any]:
+        """The task's row of results.csv with only what names the task filled in."""
+        row: dict[str, Any] = dict.fromkeys(COLUMNS, "")
+        row.update(task_id=self.key, run=self.run.name, method=self.method.value,
+                   protocol=self.protocol.value, settings=settings_label(self.settings))
+        return row
+
     def label(self) -> str:
         return f"{self.run.name} {self.method.value} {self.protocol.value} " \
                f"{settings_label(self.settings)}"
@@ -63,9 +70,7 @@ def run_task(task: Task) -> TaskResult:
     filter's warnings are not printed: a sweep's output is its rows."""
     for name in ("fusion", "houghloc"):
         logging.getLogger(name).setLevel(logging.ERROR)
-    row: dict[str, Any] = {c: "" for c in COLUMNS}
-    row.update(task_id=task.key, run=task.run.name, method=task.method.value,
-               protocol=task.protocol.value, settings=settings_label(task.settings))
+    row = task.blank_row()
     try:
         trajectory = _run(task, row)
     except MissingPeer as error:

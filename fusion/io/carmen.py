@@ -297,28 +297,30 @@ class _CarmenParser:
         except (OSError, EOFError) as err:  # a truncated or corrupt gzip stream
             self._warn(f"line {number + 1}: stream ends early ({err}); the rest is lost",
                        "stream ends early")
-        hidden = len(self.stats.warnings) and self.stats.skipped - LOGGED_WARNINGS
-        if hidden > 0:
-            log.warning("%s: %d more bad records not shown", path, hidden)
+        for kind, (count, _first) in self.stats.kinds.items():
+            if count > LOGGED_WARNINGS:
+                log.warning("%s: %d more of kind %r not shown (metrics.json counts them)", path,
+                            count - LOGGED_WARNINGS, kind)
         if emitted == 0:
             raise LogError(
                 path, f"no usable record ({number} lines read, {self.stats.skipped} bad records)"
             )
 
-    def _warn(self, message: str, kind: str = "bad record") -> None:
+    def _warn(self, message: str, kind: str = "bad record", skipped: bool = True) -> None:
+        """Count a warning of its kind; log the first of each kind and the first
+        LOGGED_WARNINGS of each (metrics.json has them all by kind)."""
         # a damaged line may hold terminal escapes: never echo them
         message = "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
-        first = self.stats.warn(message, kind=kind)
-        if self.stats.skipped <= LOGGED_WARNINGS or first:
+        self.stats.warn(message, kind=kind, skipped=skipped)
+        if self.stats.kinds[kind][0] <= LOGGED_WARNINGS:
             log.warning("%s: %s", self.source.path, message)
 
     def _check_order(self, t: float, number: int) -> None:
         if self._last_t is not None and t < self._last_t:
             self.stats.backwards_timestamps += 1
-            message = (f"line {number}: stamp {t:.6g} s is {self._last_t - t:.3g} s behind the "
-                       "record before it (odometry older than the newest is not used)")
-            if self.stats.warn(message, kind="backwards timestamp", skipped=False):
-                log.warning("%s: %s", self.source.path, message)
+            self._warn(f"line {number}: stamp {t:.6g} s is {self._last_t - t:.3g} s behind the "
+                       "record before it (odometry older than the newest is not used)",
+                       "backwards timestamp", skipped=False)
         self._last_t = t
 
     # -- records --------------------------------------------------------------------------------
@@ -380,10 +382,8 @@ class _CarmenParser:
     def _valid_ranges(self, fields: list[str], number: int) -> NDArray[np.float64]:
         ranges, invalid = _ranges(fields)
         if invalid:
-            message = f"line {number}: {invalid} NaN or negative range(s) taken as no return"
-            first = self.stats.warn(message, kind="invalid range", skipped=False)
-            if first or self.stats.kinds["invalid range"][0] <= LOGGED_WARNINGS:
-                log.warning("%s: %s", self.source.path, message)
+            self._warn(f"line {number}: {invalid} NaN or negative range(s) taken as no return",
+                       "invalid range", skipped=False)
         return ranges
 
     def _robotlaser1(self, tokens: list[str], number: int) -> list[Event]:
