@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from fusion.evaluation import ATE, LostFraction, Trajectory, nees
@@ -52,6 +52,28 @@ class ReplayResult:
         return self.scans / total if total > 0 else float("nan")
 
 
+class _Rows:
+    """Fixed-width float rows appended one at a time into one array that doubles when full:
+    8 bytes a value, where a list of small arrays costs some 100 bytes a row, so a ten-hour
+    log's results stay a small part of a run's memory."""
+
+    def __init__(self, width: int) -> None:
+        self._data = np.empty((1024, width))
+        self._n = 0
+
+    def append(self, *values: ArrayLike) -> None:
+        if self._n == len(self._data):
+            self._data = np.concatenate((self._data, np.empty_like(self._data)))
+        self._data[self._n] = np.concatenate([np.ravel(v) for v in values])
+        self._n += 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    def array(self) -> NDArray[np.float64]:
+        return self._data[: self._n].copy()
+
+
 def replay(events: Iterable[Event], localizer: Localizer, *,
            trajectory_path: str | Path | None = None, progress: bool | None = None,
            description: str = "replay", keep: bool = True) -> ReplayResult:
@@ -70,12 +92,9 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     stamp, would otherwise hold it until the stamps catch up, and then give it all the motion
     since). Outputs stay in scan order.
     """
-    t_out_list: list[float] = []
-    poses: list[NDArray] = []
-    covs: list[NDArray] = []
-    statuses: list[str] = []
-    truth_t: list[float] = []
-    truth: list[tuple[float, float, float]] = []
+    rows = _Rows(1 + 3 + 9)  # t, pose, covariance
+    statuses: list[str] = []  # the same few strings, shared: one reference a scan
+    truth = _Rows(4)  # t, x, y, θ
     seconds = {"odometry": 0.0, "scans": 0.0}
     writer = TumWriter(trajectory_path).open() if trajectory_path is not None else None
     bar = tqdm(desc=description, unit="scan", disable=(None if progress is None else not progress),
@@ -89,9 +108,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
 
     def record(t_out: float, pose: NDArray, cov: NDArray, status: str) -> None:
         if keep:
-            t_out_list.append(t_out)
-            poses.append(pose)
-            covs.append(cov)
+            rows.append(t_out, pose, cov)
             statuses.append(status)
         if writer is not None:
             writer.write(t_out, *pose)
@@ -119,8 +136,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
                 localizer.on_landmark(event.t, event.label, event.bearing)
                 continue
             if isinstance(event, Truth):
-                truth_t.append(event.t)
-                truth.append((event.x, event.y, event.theta))
+                truth.append((event.t, event.x, event.y, event.theta))
                 localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
                 continue
             if pending:  # a scan's pose is recorded by the next scan at the latest: odometry
@@ -154,11 +170,11 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
         localizer.logger.flush()
     seconds["total"] = time.perf_counter() - started
     seconds.update(localizer.stats.seconds)
+    table, truth_table = rows.array(), truth.array()
     return ReplayResult(
-        np.asarray(t_out_list), np.asarray(poses).reshape(-1, 3),
-        np.asarray(covs).reshape(-1, 3, 3), statuses,
-        Trajectory(truth_t, truth) if truth_t else None, seconds, n_events, interrupted,
-        n_scans, (first_t, last_t))
+        table[:, 0], table[:, 1:4], table[:, 4:].reshape(-1, 3, 3), statuses,
+        Trajectory(truth_table[:, 0], truth_table[:, 1:]) if len(truth_table) else None,
+        seconds, n_events, interrupted, n_scans, (first_t, last_t))
 
 
 def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) -> dict[str, Any]:

@@ -40,8 +40,9 @@ turn_axis ipc_timestamp ipc_hostname logger_timestamp
 
 from __future__ import annotations
 
+import heapq
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Literal
 
@@ -58,6 +59,7 @@ from houghloc.yaml_io import read_yaml, validated
 
 HOSTNAME = "sim"
 LASER_TYPE_SIMULATED = 3
+_BLOCK = 4096  # records turned into Python values at a time while writing
 
 
 def _atomic_write(path: Path, write: Callable[[IO[str]], None]) -> Path:
@@ -97,23 +99,49 @@ def _odom_velocities(run: SimRun) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _write_carmen(run: SimRun, f: IO[str], laser_message: str) -> None:
+    """Stream the log: lines are made and written one at a time, merged by time with odometry
+    first at equal times (a localizer predicts before it corrects)."""
     cfg = run.config
     f.write("# CARMEN Logfile\n# file format is one message per line\n")
     f.write(f"# simulated by fusion.sim: scenario {cfg.name!r}, seed {cfg.seed}\n")
     f.write("# ODOM x y theta tv rv accel ipc_timestamp ipc_hostname logger_timestamp\n")
     tv, rv = _odom_velocities(run)
-    odom_lines = [
-        f"ODOM {x:.6f} {y:.6f} {th:.6f} {v:.6f} {w:.6f} 0.000000 {t:.6f} {HOSTNAME} {t:.6f}\n"
-        for (x, y, th), v, w, t in zip(run.odom_pose.tolist(), tv.tolist(), rv.tolist(),
-                                       run.odom_t.tolist(), strict=True)
-    ]
-    laser_lines: list[str] = []
-    if cfg.laser is not None and len(run.scan_t):
+    has_scans = cfg.laser is not None and run.laser is not None and len(run.scan_t) > 0
+    use_flaser = has_scans and cfg.laser is not None and (
+        laser_message == "FLASER"
+        or (laser_message == "auto" and math.isclose(cfg.laser.fov_deg, 180.0)))
+
+    def odom_lines() -> Iterator[tuple[float, int, str]]:
+        for k0 in range(0, len(run.odom_t), _BLOCK):  # in blocks: a list per record is costly
+            block = slice(k0, k0 + _BLOCK)
+            for (x, y, th), v, w, t in zip(run.odom_pose[block].tolist(), tv[block].tolist(),
+                                           rv[block].tolist(), run.odom_t[block].tolist(),
+                                           strict=True):
+                yield t, 0, (f"ODOM {x:.6f} {y:.6f} {th:.6f} {v:.6f} {w:.6f} 0.000000 {t:.6f} "
+                             f"{HOSTNAME} {t:.6f}\n")
+
+    def laser_lines() -> Iterator[tuple[float, int, str]]:
+        if not has_scans or cfg.laser is None or run.laser is None:
+            return
         fov = math.radians(cfg.laser.fov_deg)
-        use_flaser = (laser_message == "FLASER"
-                      or (laser_message == "auto" and math.isclose(cfg.laser.fov_deg, 180.0)))
         row_fmt = " ".join(["%.3f"] * len(run.angles))
         k_odom = np.clip(np.searchsorted(run.odom_t, run.scan_t), 0, len(run.odom_t) - 1)
+        head = (f"{LASER_TYPE_SIMULATED} {run.angles[0]:.10f} {fov:.10f} "
+                f"{fov / (len(run.angles) - 1):.12f} {cfg.laser.max_range:.3f} "
+                f"{cfg.laser.sigma:.3f} 0")
+        scans = zip(run.scan_t, run.scan_odom, k_odom, run.laser.scans(), strict=True)
+        for t, (x, y, th), j, (r, _) in scans:
+            ranges = row_fmt % tuple(r.tolist())
+            pose = f"{x:.6f} {y:.6f} {th:.6f}"
+            if use_flaser:
+                yield t, 1, (f"FLASER {len(run.angles)} {ranges} {pose} {pose} "
+                             f"{t:.6f} {HOSTNAME} {t:.6f}\n")
+            else:
+                yield t, 1, (f"ROBOTLASER1 {head} {len(run.angles)} {ranges} 0 {pose} {pose} "
+                             f"{tv[j]:.6f} {rv[j]:.6f} 0.000 0.000 0.000 {t:.6f} {HOSTNAME} "
+                             f"{t:.6f}\n")
+
+    if has_scans:
         if use_flaser:
             f.write("# FLASER n r1 ... rn x y theta odom_x odom_y odom_theta "
                     "ipc_timestamp ipc_hostname logger_timestamp\n")
@@ -122,27 +150,8 @@ def _write_carmen(run: SimRun, f: IO[str], laser_message: str) -> None:
                     "remission_mode n r1 ... rn 0 x y theta odom_x odom_y odom_theta tv rv "
                     "forward_safety_dist side_safety_dist turn_axis ipc_timestamp ipc_hostname "
                     "logger_timestamp\n")
-        head = (f"{LASER_TYPE_SIMULATED} {run.angles[0]:.10f} {fov:.10f} "
-                f"{fov / (len(run.angles) - 1):.12f} {cfg.laser.max_range:.3f} "
-                f"{cfg.laser.sigma:.3f} 0")
-        for k, t in enumerate(run.scan_t.tolist()):
-            ranges = row_fmt % tuple(run.ranges[k].tolist())
-            x, y, th = run.scan_odom[k]
-            pose = f"{x:.6f} {y:.6f} {th:.6f}"
-            if use_flaser:
-                laser_lines.append(f"FLASER {len(run.angles)} {ranges} {pose} {pose} "
-                                   f"{t:.6f} {HOSTNAME} {t:.6f}\n")
-            else:
-                j = k_odom[k]
-                laser_lines.append(
-                    f"ROBOTLASER1 {head} {len(run.angles)} {ranges} 0 {pose} {pose} "
-                    f"{tv[j]:.6f} {rv[j]:.6f} 0.000 0.000 0.000 {t:.6f} {HOSTNAME} {t:.6f}\n")
-    # Merge by time, odometry first at equal times (a localizer predicts before it corrects).
-    times = np.concatenate((run.odom_t, run.scan_t[: len(laser_lines)]))
-    kinds = np.concatenate((np.zeros(len(odom_lines)), np.ones(len(laser_lines))))
-    lines = odom_lines + laser_lines
-    for i in np.lexsort((kinds, times)).tolist():
-        f.write(lines[i])
+    for *_, line in heapq.merge(odom_lines(), laser_lines()):
+        f.write(line)
 
 
 # ---------------------------------------------------------------------------------- TUM

@@ -8,6 +8,7 @@ so does a dropped beam; a spurious short return is labelled −4. The noise mode
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -148,3 +149,51 @@ def laser_scan(m: SegmentMap, pose: ArrayLike, rng: np.random.Generator,
     r_true, labels = true_ranges(m, pose, angles, cfg.max_range, obstacles, clutter)
     ranges, labels = corrupt_ranges(r_true, labels, cfg, rng)
     return LaserScan(ranges, angles, labels)
+
+
+@dataclass(frozen=True)
+class LaserRecording:
+    """A run's scans, cast on demand in time order, so a long run never holds them all.
+
+    Scan k is cast from ``truth[k]`` among ``discs[k]``; the sensor noise comes from one
+    generator seeded by ``seed`` and consumed scan after scan, so every pass over the
+    recording yields the same scans, whatever the block size.
+    """
+
+    map: SegmentMap
+    cfg: LaserConfig
+    angles: FloatArray
+    occluders: Occluders
+    truth: FloatArray  # K×3, map frame
+    discs: FloatArray  # K×D×3
+    seed: np.random.SeedSequence
+
+    def __len__(self) -> int:
+        return len(self.truth)
+
+    def blocks(self, size: int = 512) -> Iterator[tuple[int, FloatArray, NDArray[np.int16]]]:
+        """``(k0, ranges, labels)`` for scans ``k0 … k0 + len(ranges) − 1``, in order."""
+        rng = np.random.default_rng(self.seed)
+        for k0 in range(0, len(self), size):
+            k1 = min(k0 + size, len(self))
+            ranges = np.empty((k1 - k0, len(self.angles)))
+            labels = np.empty((k1 - k0, len(self.angles)), dtype=np.int16)
+            for i, k in enumerate(range(k0, k1)):
+                r, lab = true_ranges(self.map, self.truth[k], self.angles, self.cfg.max_range,
+                                     self.discs[k], occluders=self.occluders)
+                ranges[i], labels[i] = corrupt_ranges(r, lab, self.cfg, rng)
+            yield k0, ranges, labels
+
+    def scans(self) -> Iterator[tuple[FloatArray, NDArray[np.int16]]]:
+        """``(ranges, labels)`` of each scan in order."""
+        for _, ranges, labels in self.blocks():
+            yield from zip(ranges, labels, strict=True)
+
+    def all(self) -> tuple[FloatArray, NDArray[np.int16]]:
+        """Every scan at once: K×B ranges and labels (for short runs and tests)."""
+        parts = list(self.blocks())
+        if not parts:
+            return (np.empty((0, len(self.angles))),
+                    np.empty((0, len(self.angles)), dtype=np.int16))
+        return (np.concatenate([r for _, r, _ in parts]),
+                np.concatenate([lab for _, _, lab in parts]))

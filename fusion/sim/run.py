@@ -15,6 +15,7 @@ import heapq
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ from numpy.typing import NDArray
 from fusion.events import Event, Odometry, PointSet, Scan, Truth
 from fusion.sim.camera import camera_points
 from fusion.sim.config import ScenarioConfig
-from fusion.sim.laser import Occluders, beam_angles, corrupt_ranges, true_ranges
+from fusion.sim.laser import LaserRecording, Occluders, beam_angles
 from fusion.sim.odometry import simulate_odometry
 from fusion.sim.poses import interpolate_poses
 from fusion.sim.raycast import segments_cross
@@ -51,7 +52,11 @@ class SimulationError(RuntimeError):
 class SimRun:
     """Everything a run produced. Poses are rows (x, y, θ); ``*_truth`` in the map frame,
     ``odom_pose``/``scan_odom`` in the odometry frame. Laser arrays are empty (K = 0) without a
-    laser, camera lists empty without a camera."""
+    laser, camera lists empty without a camera.
+
+    The scans themselves are cast on demand (:attr:`laser`), so a long run is written and
+    replayed in memory bounded by one block of scans; :attr:`ranges` and :attr:`scan_labels`
+    hold them all, for short runs."""
 
     config: ScenarioConfig
     map: SegmentMap
@@ -64,9 +69,8 @@ class SimRun:
     odom_truth: FloatArray  # N×3, map frame
     kidnapped: NDArray[np.bool_]  # N−1: a kidnap between odometry records k and k+1
     scan_t: FloatArray  # K
-    ranges: FloatArray  # K×B
+    laser: LaserRecording | None  # the K scans, cast on demand; None without a laser
     angles: FloatArray  # B
-    scan_labels: NDArray[np.int16]  # K×B
     scan_truth: FloatArray  # K×3
     scan_odom: FloatArray  # K×3, odometry pose at the scan's time (for CARMEN FLASER)
     scan_obstacles: FloatArray  # K×D×2, obstacle centres at the scan times
@@ -75,6 +79,22 @@ class SimRun:
     cam_points: list[FloatArray] = field(default_factory=list)  # F arrays of n_i×2, robot frame
     cam_labels: list[NDArray[np.int16]] = field(default_factory=list)
     cam_truth: FloatArray = field(default_factory=lambda: np.empty((0, 3)))  # F×3
+
+    @cached_property
+    def _all_scans(self) -> tuple[FloatArray, NDArray[np.int16]]:
+        if self.laser is None:
+            return np.empty((0, 0)), np.empty((0, 0), dtype=np.int16)
+        return self.laser.all()
+
+    @property
+    def ranges(self) -> FloatArray:
+        """K×B ranges of every scan (cast once, then kept)."""
+        return self._all_scans[0]
+
+    @property
+    def scan_labels(self) -> NDArray[np.int16]:
+        """K×B labels of what each beam hit (see :mod:`fusion.sim.laser`)."""
+        return self._all_scans[1]
 
     @property
     def truth_t(self) -> FloatArray:
@@ -104,8 +124,11 @@ class SimRun:
                 yield t, 0, k, Odometry(t, p[0], p[1], p[2])
 
         def scans() -> Iterator[tuple[float, int, int, Event]]:
-            for k, t in enumerate(self.scan_t.tolist()):
-                yield t, 1, k, Scan(t, self.ranges[k], self.angles, max_range=max_range)
+            if self.laser is None:
+                return
+            for k, (t, (r, _)) in enumerate(zip(self.scan_t.tolist(), self.laser.scans(),
+                                                strict=True)):
+                yield t, 1, k, Scan(t, r, self.angles, max_range=max_range)
 
         def truths() -> Iterator[tuple[float, int, int, Event]]:
             for k, (t, p) in enumerate(zip(self.truth_t.tolist(), self.truth.tolist(),
@@ -132,7 +155,8 @@ def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
     map_path = resolve_map_path(cfg.map, map_base)
     m = SegmentMap.from_yaml(map_path)
     seeds = np.random.SeedSequence(cfg.seed).spawn(6)
-    rng_route, rng_clutter, rng_obst, rng_odom, rng_laser, rng_cam = (
+    # The laser's generator (seeds[4]) is made by the recording each time it is read.
+    rng_route, rng_clutter, rng_obst, rng_odom, _, rng_cam = (
         np.random.default_rng(s) for s in seeds)
 
     dt = 1.0 / cfg.odom_rate
@@ -164,18 +188,14 @@ def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
         angles = beam_angles(cfg.laser)
         scan_truth = interpolate_poses(scan_t, odom_t, traj.poses)
         scan_discs = discs_at(scan_t - cfg.start_time, cfg.obstacle_dt, track, radii)
-        ranges = np.empty((len(scan_t), len(angles)))
-        labels = np.empty((len(scan_t), len(angles)), dtype=np.int16)
-        occluders = Occluders.build(m, clutter)
-        for k in range(len(scan_t)):
-            r, lab = true_ranges(m, scan_truth[k], angles, cfg.laser.max_range, scan_discs[k],
-                                 occluders=occluders)
-            ranges[k], labels[k] = corrupt_ranges(r, lab, cfg.laser, rng_laser)
+        laser: LaserRecording | None = LaserRecording(
+            m, cfg.laser, angles, Occluders.build(m, clutter), scan_truth, scan_discs,
+            seed=seeds[4])
         scan_odom = interpolate_poses(scan_t, odom_t, odom)
         scan_obstacles = scan_discs[:, :, :2].copy()
     else:
         scan_t, angles = np.empty(0), np.empty(0)
-        ranges, labels = np.empty((0, 0)), np.empty((0, 0), dtype=np.int16)
+        laser = None
         scan_truth = scan_odom = np.empty((0, 3))
         scan_obstacles = np.empty((0, len(radii), 2))
 
@@ -198,8 +218,8 @@ def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
     return SimRun(
         config=cfg, map=m, map_path=map_path, route=route, clutter=clutter,
         obstacle_radii=radii, odom_t=odom_t, odom_pose=odom, odom_truth=traj.poses,
-        kidnapped=traj.kidnapped, scan_t=scan_t, ranges=ranges, angles=angles,
-        scan_labels=labels, scan_truth=scan_truth, scan_odom=scan_odom,
+        kidnapped=traj.kidnapped, scan_t=scan_t, laser=laser, angles=angles,
+        scan_truth=scan_truth, scan_odom=scan_odom,
         scan_obstacles=scan_obstacles, cam_t=cam_t, cam_arrival=cam_arrival,
         cam_points=cam_points, cam_labels=cam_labels, cam_truth=cam_truth,
     )
