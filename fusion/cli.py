@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from fusion.visualize import NullLogger
+
 EXIT_BAD_INPUT = 2
 EXIT_NOT_LOCALIZED = 3
 
@@ -220,7 +222,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise CliError("--initial-pose must be three finite numbers")
     args.out.mkdir(parents=True, exist_ok=True)
     logger = _make_logger(args, args.out / "run.rrd")
-    if reference is not None:  # the recording shows the ground truth beside the estimate, in time
+    if reference is not None and not isinstance(logger, NullLogger):
+        # the recording shows the ground truth beside the estimate, in time (without a
+        # recording the reference is only scored, and is not carried through the replay)
         from fusion.events import Truth
         from fusion.io import merge_by_time
 
@@ -395,8 +399,6 @@ def _open_log(path: Path) -> tuple[Any, Any, Path | None]:
 
 
 def _make_logger(args: argparse.Namespace, path: Path):
-    from fusion.visualize import NullLogger
-
     if args.no_rerun and not args.serve:
         return NullLogger()
     try:

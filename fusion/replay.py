@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
-from fusion.evaluation import ATE, LostFraction, Trajectory, nees
+from fusion.evaluation import ATE, ATEResult, LostFraction, NEESResult, Trajectory, chi2_band, nees
 from fusion.events import Event, Landmark, Odometry, PointSet, ReadStats, Scan, Truth
 from fusion.io.files import atomic_write_json
 from fusion.io.tum import TumWriter
@@ -33,7 +33,7 @@ class ReplayResult:
 
     t: NDArray[np.float64]
     poses: NDArray[np.float64]
-    covs: NDArray[np.float64]
+    cov_upper: NDArray[np.float64]  # N×6: each covariance's upper triangle, row by row
     statuses: list[str]
     truth: Trajectory | None
     seconds: dict[str, float] = field(default_factory=dict)
@@ -47,15 +47,31 @@ class ReplayResult:
         return Trajectory(self.t, self.poses)
 
     @property
+    def covs(self) -> NDArray[np.float64]:
+        """The pose covariances, N×3×3 (built on each call: a long run keeps only the upper
+        triangles)."""
+        return self.covs_at(slice(None))
+
+    def covs_at(self, index: slice | NDArray[np.intp]) -> NDArray[np.float64]:
+        """The covariances of the scans ``index`` selects, K×3×3."""
+        upper = self.cov_upper[index]
+        return upper[:, _FULL_FROM_UPPER].reshape(-1, 3, 3)
+
+    @property
     def scans_per_second(self) -> float:
         total = self.seconds.get("total", 0.0)
         return self.scans / total if total > 0 else float("nan")
 
 
+_UPPER = np.triu_indices(3)
+_FULL_FROM_UPPER = np.array([0, 1, 2, 1, 3, 4, 2, 4, 5])  # upper triangle → row-major 3×3
+
+
 class _Rows:
-    """Fixed-width float rows appended one at a time into one array that doubles when full:
-    8 bytes a value, where a list of small arrays costs some 100 bytes a row, so a ten-hour
-    log's results stay a small part of a run's memory."""
+    """Fixed-width float rows appended one at a time into one array: 8 bytes a value, where a
+    list of small arrays costs some 100 bytes a row. The array grows in place
+    (``ndarray.resize``: a large block is remapped, not copied, and the spare capacity is not
+    resident until written), so a ten-hour log's results cost their own size and no copy."""
 
     def __init__(self, width: int) -> None:
         self._data = np.empty((1024, width))
@@ -63,7 +79,7 @@ class _Rows:
 
     def append(self, *values: ArrayLike) -> None:
         if self._n == len(self._data):
-            self._data = np.concatenate((self._data, np.empty_like(self._data)))
+            self._data.resize((2 * len(self._data), self._data.shape[1]), refcheck=False)
         self._data[self._n] = np.concatenate([np.ravel(v) for v in values])
         self._n += 1
 
@@ -71,7 +87,10 @@ class _Rows:
         return self._n
 
     def array(self) -> NDArray[np.float64]:
-        return self._data[: self._n].copy()
+        """The rows, taken out of the collector (shrunk in place, not copied)."""
+        data, self._data = self._data, np.empty((0, self._data.shape[1]))
+        data.resize((self._n, data.shape[1]), refcheck=False)
+        return data
 
 
 def replay(events: Iterable[Event], localizer: Localizer, *,
@@ -92,7 +111,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     stamp, would otherwise hold it until the stamps catch up, and then give it all the motion
     since). Outputs stay in scan order.
     """
-    rows = _Rows(1 + 3 + 9)  # t, pose, covariance
+    rows = _Rows(1 + 3 + 6)  # t, pose, covariance's upper triangle
     statuses: list[str] = []  # the same few strings, shared: one reference a scan
     truth = _Rows(4)  # t, x, y, θ
     seconds = {"odometry": 0.0, "scans": 0.0}
@@ -108,7 +127,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
 
     def record(t_out: float, pose: NDArray, cov: NDArray, status: str) -> None:
         if keep:
-            rows.append(t_out, pose, cov)
+            rows.append(t_out, pose, np.asarray(cov)[_UPPER])
             statuses.append(status)
         if writer is not None:
             writer.write(t_out, *pose)
@@ -172,7 +191,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     seconds.update(localizer.stats.seconds)
     table, truth_table = rows.array(), truth.array()
     return ReplayResult(
-        table[:, 0], table[:, 1:4], table[:, 4:].reshape(-1, 3, 3), statuses,
+        table[:, 0], table[:, 1:4], table[:, 4:], statuses,
         Trajectory(truth_table[:, 0], truth_table[:, 1:]) if len(truth_table) else None,
         seconds, n_events, interrupted, n_scans, (first_t, last_t))
 
@@ -183,14 +202,26 @@ def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) ->
     if reference is None or len(reference) == 0 or len(est) == 0:
         return {}
     ate = ATE().compute(est, reference)
-    lost = LostFraction().compute(est, reference)
+    lost = LostFraction().from_ate(ate)  # the same association, not a second one
     out: dict[str, Any] = {"ate": ate.as_dict(), "lost": lost.as_dict()}
     idx = ate.association.est_index
     if len(idx) and isinstance(result, ReplayResult):
-        err = np.column_stack((result.poses[idx, :2] - reference.poses[ate.association.ref_index,
-                                                                        :2], ate.heading_errors))
-        out["nees"] = nees(err, result.covs[idx]).as_dict()
+        out["nees"] = _nees(result, reference, ate).as_dict()
     return out
+
+
+def _nees(result: ReplayResult, reference: Trajectory, ate: ATEResult,
+          chunk: int = 65536) -> NEESResult:
+    """NEES of every associated estimate, a chunk at a time: a ten-hour run's covariances are
+    not copied whole (fancy indexing copies)."""
+    est_index, ref_index = ate.association.est_index, ate.association.ref_index
+    values = np.empty(len(est_index))
+    for lo in range(0, len(est_index), chunk):
+        i, j = est_index[lo:lo + chunk], ref_index[lo:lo + chunk]
+        err = np.column_stack((result.poses[i, :2] - reference.poses[j, :2],
+                               ate.heading_errors[lo:lo + chunk]))
+        values[lo:lo + chunk] = nees(err, result.covs_at(i)).values
+    return NEESResult(values, 3, chi2_band(len(values), 3))
 
 
 def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: ReadStats | None,

@@ -23,6 +23,7 @@ from fusion.config import ConfigError, LocalizerConfig
 from fusion.evaluation import ATE, ATEResult, Trajectory, chi2_band
 from fusion.events import Odometry, Scan
 from fusion.experiment import OutlierInjectingTracker, localize_simulated
+from fusion.io.tum import read_tum
 from fusion.localizer import Localizer
 from fusion.replay import replay
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
@@ -294,6 +295,46 @@ def test_peak_memory_does_not_grow_with_the_log(tmp_path: Path) -> None:
     # Six times the log may cost a little (the visibility memo fills up to its cap, about
     # 1 MiB), not six times the memory of its data; the issue allows 8 MiB.
     assert peaks[60] - peaks[10] <= 4 * 1024, f"peak RSS {peaks} KiB"
+
+
+CLI_PEAK_RSS_SCRIPT = textwrap.dedent("""
+    import resource, sys
+    from fusion.cli import main
+    code = main(sys.argv[1:])
+    print(code, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+""")
+
+
+def cli_peak_rss_kib(*argv: str) -> int:
+    """Peak RSS in KiB of ``houghloc ARGV`` in a fresh interpreter; the command must succeed."""
+    done = subprocess.run([*FRESH_PROCESS, "-c", CLI_PEAK_RSS_SCRIPT, *argv],
+                          capture_output=True, text=True, cwd=REPO, timeout=3600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    code, rss = done.stdout.split()[-2:]
+    assert int(code) == 0, done.stderr[-2000:]
+    return int(rss)
+
+
+@pytest.mark.slow
+def test_ten_hours_simulated_under_a_gigabyte_and_run_in_one_and_a_half_hours_memory(
+        tmp_path: Path) -> None:
+    """The simulator draws its scans block by block and the writer streams them: a 10-hour log
+    (360,000 scans, 1 GB of CARMEN text) costs its trajectory's memory, not its scans'. The run
+    keeps a pose and a covariance per scan for the scoring (80 bytes): ten times the log costs
+    at most half as much again as one hour (the interpreter and its libraries are most of it)."""
+    peaks = {}
+    for hours in (1, 10):
+        log = tmp_path / f"sim-{hours}h"
+        sim = cli_peak_rss_kib("sim", "--scenario", "robocup-laser", "--duration",
+                               str(3600 * hours), "--out", str(log))
+        if hours == 10:
+            assert sim <= 1024 * 1024, f"houghloc sim: peak RSS {sim / 1024:.0f} MiB"
+        start = read_tum(log / "gt.tum", limit=2)[1][1]  # the pose at the first scan
+        peaks[hours] = cli_peak_rss_kib(
+            "run", "--map", str(log / "map.yaml"), "--log", str(log / "log.carmen"),
+            "--gt", str(log / "gt.tum"), "--initial-pose", *map(str, start), "--no-rerun",
+            "--no-progress", "--out", str(tmp_path / f"run-{hours}h"))
+    assert peaks[10] <= 1.5 * peaks[1], f"houghloc run: peak RSS {peaks} KiB"
 
 
 @pytest.mark.parametrize("min_fix_lines, status", [(1, "accepted"), (2, "no-fix")])
