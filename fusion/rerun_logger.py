@@ -36,13 +36,17 @@ the pixel square [i_ρ, i_ρ+1) × [i_θ, i_θ+1), and a continuous (θ, ρ) is 
 u = (ρ − ρ_min)/δρ, v = θ/δθ + ½ (θ cell i is centred on iδθ; ρ cell j spans an interval).
 
 Speed: one ``log`` call costs ~100 µs whatever its size, so per-scan data is buffered and sent
-with one ``send_columns`` call per entity every ``BATCH_SCANS`` scans or ``BATCH_SECONDS`` of
-wall time (a live viewer lags at most that) and at :meth:`RerunLogger.flush`. Only the Hough
-image (where the cost is per pixel), the state log and the hypotheses are logged at once.
+with one ``send_columns`` call per entity every ``BATCH_SCANS`` scans, every ``BATCH_SECONDS``
+of wall time when serving (a live viewer lags at most that), and at :meth:`RerunLogger.flush`.
+Only the Hough image (where the cost is per pixel), the state log and the hypotheses are logged
+at once; when not serving, the SDK gathers them into chunks of ``FILE_CHUNK_BYTES``.
 
-Paths are logged in pieces because the viewer shows the latest value of an entity: a path must
-be re-sent whole to grow, quadratic in the length of the run. Each piece holds at most
-``PATH_PIECE`` poses (and starts at the end of the previous one); finished pieces stay visible.
+Paths are logged in blocks because the viewer shows the latest value of an entity: a path sent
+whole at every scan grows quadratically with the run. The newest ``PATH_PIECE`` poses are
+re-sent at every scan; older ones sit in blocks merged like a binary counter (:class:`_Path`).
+The number of entities stays logarithmic in the run: a file sink keeps an index of every chunk,
+one column per entity and component, until its footer is written, so an entity per piece would
+make a long recording's memory grow with the square of its length.
 
 Rerun's 2D views draw +y downwards (rerun issue #1387: no view coordinates for 2D views yet), so
 the world view is the map mirrored top to bottom; hovering shows true map coordinates.
@@ -74,9 +78,14 @@ _log = logging.getLogger(__name__)
 SERVE_HOST = "127.0.0.1"  # serve to this machine only: a recording can show where a robot is
 GRPC_PORT = 9876
 WEB_PORT = 9090
-BATCH_SCANS = 100  # scans buffered per send_columns call ...
-BATCH_SECONDS = 0.5  # ... or wall-clock seconds, whichever first: a live view lags at most this
-PATH_PIECE = 200  # poses per logged piece of a path
+# Scans buffered per send_columns call. Each call makes one chunk per entity, and a file sink
+# keeps a few kB of metadata per chunk until its footer is written at the end: fewer, larger
+# chunks keep a long recording's memory flat.
+BATCH_SCANS = 2000
+BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
+FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
+FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
+PATH_PIECE = 50  # poses re-sent at every scan; older ones are re-sent ~log2(n / this) times
 CHI2_95_2DOF = 5.991464547107979  # χ²(2) quantile of the 95 % ellipse
 MAX_ELLIPSE_RADIUS = 20.0  # m; an unobserved direction would otherwise zoom the view out to nothing
 UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulation's
@@ -192,23 +201,49 @@ def _own_row(grid: Any, theta: ArrayLike) -> NDArray[np.float64]:
 
 
 class _Path:
-    """A growing polyline logged in pieces of at most ``PATH_PIECE`` poses (see the module doc)."""
+    """A growing polyline drawn with a bounded number of entities (see the module doc).
+
+    The newest poses (at most ``PATH_PIECE`` segments) are re-sent at every scan on
+    ``<entity>/recent``. A full piece moves to level 0; a block arriving on an occupied level
+    merges with it (older first) and moves up, as in a binary counter, so level ``j`` holds
+    ``2**j`` pieces or nothing. A run of ``n`` poses uses ``1 + log2(n / PATH_PIECE)`` entities
+    and re-sends each pose about ``log2(n / PATH_PIECE)`` times.
+    """
 
     def __init__(self, entity: str) -> None:
         self.entity = entity
-        self.piece = 0
-        self.buffer = np.empty((PATH_PIECE + 1, 2))
+        self.recent = np.empty((PATH_PIECE + 1, 2))
         self.count = 0
+        self.levels: list[NDArray[np.float64] | None] = []
 
-    def append(self, xy: ArrayLike) -> tuple[str, NDArray[np.float64]]:
-        """Add a point; return the entity of the current piece and its points to log."""
-        if self.count == len(self.buffer):
-            self.buffer[0] = self.buffer[-1]  # the new piece starts where the last one ended
+    def append(self, xy: ArrayLike) -> list[tuple[str, NDArray[np.float64]]]:
+        """Add a pose; return the (entity, polyline) pairs to log, an empty polyline clearing."""
+        updates = []
+        if self.count == len(self.recent):
+            updates = self._carry(self.recent.copy())
+            self.recent[0] = self.recent[-1]  # the new piece starts where the last one ended
             self.count = 1
-            self.piece += 1
-        self.buffer[self.count] = xy[:2]
+        self.recent[self.count] = np.asarray(xy, dtype=float)[:2]
         self.count += 1
-        return f"{self.entity}/{self.piece}", self.buffer[: self.count].copy()
+        updates.append((f"{self.entity}/recent", self.recent[: self.count].copy()))
+        return updates
+
+    def _carry(self, block: NDArray[np.float64]) -> list[tuple[str, NDArray[np.float64]]]:
+        updates = []
+        level = 0
+        while level < len(self.levels) and (older := self.levels[level]) is not None:
+            block = np.vstack((older, block[1:]))  # the blocks share their joining pose
+            self.levels[level] = None
+            updates.append((f"{self.entity}/{level}", _NO_POINTS))
+            level += 1
+        if level == len(self.levels):
+            self.levels.append(None)
+        self.levels[level] = block
+        updates.append((f"{self.entity}/{level}", block))
+        return updates
+
+
+_NO_POINTS = np.empty((0, 2))
 
 
 # ------------------------------------------------------------------------------- blueprint
@@ -347,16 +382,20 @@ class RerunLogger:
     image every N scans (0: never) — it is the costly part. The default blueprint travels with
     the recording.
 
-    Per-scan data is buffered and sent in columns every ``BATCH_SCANS`` scans or
-    ``BATCH_SECONDS`` of wall time, and by :meth:`flush` / :meth:`close`; the Hough image, the
-    state log and the hypotheses are logged at once.
+    Per-scan data is buffered and sent in columns every ``BATCH_SCANS`` scans (or, when
+    serving, ``BATCH_SECONDS`` of wall time), and by :meth:`flush` / :meth:`close`; the Hough
+    image, the state log and the hypotheses are logged at once.
     """
 
     def __init__(self, path: str | Path | None = None, *, serve: bool = False,
                  app_id: str = "houghloc", recording_name: str | None = None,
                  accumulator_every: int = 1, grpc_port: int = GRPC_PORT,
                  web_port: int | None = WEB_PORT) -> None:
-        self.stream = rr.RecordingStream(app_id, recording_id=uuid.uuid4())
+        # Unless a viewer watches live, images are gathered into larger chunks (see BATCH_SCANS)
+        batcher = None if serve else rr.ChunkBatcherConfig(flush_tick=FILE_FLUSH_SECONDS,
+                                                           flush_num_bytes=FILE_CHUNK_BYTES)
+        self.stream = rr.RecordingStream(app_id, recording_id=uuid.uuid4(),
+                                         batcher_config=batcher)
         self.accumulator_every = int(accumulator_every)
         self.memory: Any = None
         self.grpc_url: str | None = None  # for the native viewer: ``rerun <grpc_url>``
@@ -385,6 +424,7 @@ class RerunLogger:
         self._batches: dict[str, _Batch] = {}
         self._styled: set[str] = set()
         self._batched_scans = 0
+        self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
         self._colours = _LineColours()
@@ -448,7 +488,7 @@ class RerunLogger:
         self._scans_logged += 1
         self._batched_scans += 1
         if (self._batched_scans >= BATCH_SCANS
-                or time.monotonic() - self._last_send >= BATCH_SECONDS):
+                or time.monotonic() - self._last_send >= self._batch_seconds):
             self._send_batches()
 
     def log_truth(self, t: float, pose: Any) -> None:
@@ -604,12 +644,13 @@ class RerunLogger:
             self._extend_path(t, index, "truth", truth)
 
     def _extend_path(self, t: float, index: int, name: str, pose: NDArray[np.float64]) -> None:
-        entity, strip = self._paths[name].append(pose)
-        batch = self._batches.get(entity)
-        if batch is None:  # a new piece: its style once
-            batch = self._batch(entity, rr.LineStrips2D, rr.LineStrips2D.from_fields(
-                colors=_PATH_COLOURS[name], radii=0.02, draw_order=2.0))
-        batch.add(t, index, 1, strips=[strip])
+        for entity, strip in self._paths[name].append(pose):
+            batch = self._batches.get(entity)
+            if batch is None:
+                batch = self._batch(entity, rr.LineStrips2D, rr.LineStrips2D.from_fields(
+                    colors=_PATH_COLOURS[name], radii=0.02, draw_order=2.0))
+            n = 1 if len(strip) else 0
+            batch.add(t, index, n, strips=[strip][:n])
 
     # ---------------------------------------------------------------- Hough
     def _hough(self, t: float, index: int, correction: Any) -> None:

@@ -16,13 +16,17 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rerun.chunk import RrdReader
 
 from fusion.ekf import UpdateOutcome
 from fusion.localizer import Estimate
 from fusion.rerun_logger import (
+    PATH_PIECE,
     SERVE_HOST,
     RerunLogger,
+    _Path,
     covariance_ellipse,
     line_palette,
     web_viewer_command,
@@ -113,8 +117,8 @@ def test_same_methods_and_signatures_as_the_null_logger() -> None:
 def test_recording_holds_every_stage(recording: dict[str, list[pa.RecordBatch]]) -> None:
     expected = [
         "world/map/walls", "world/map/lines", "world/scan/points", "world/robot/estimate",
-        "world/robot/covariance", "world/robot/truth", "world/path/estimate/0",
-        "world/path/odometry/0", "world/path/truth/0", "hough/accumulator", "hough/peaks",
+        "world/robot/covariance", "world/robot/truth", "world/path/estimate/recent",
+        "world/path/odometry/recent", "world/path/truth/recent", "hough/accumulator", "hough/peaks",
         "hough/references", "hough/matches", "metrics/innovation/x", "metrics/innovation/y",
         "metrics/innovation/theta", "metrics/nis", "metrics/sigma/x", "metrics/sigma/y",
         "metrics/sigma/theta", "metrics/error/position", "metrics/error/heading",
@@ -264,13 +268,35 @@ def test_a_cli_run_records_every_stage_of_every_scan(tmp_path: Path) -> None:
     assert code == 0
     entities = chunks_by_entity(out / "run.rrd")
     for name in ("world/map/walls", "world/map/lines", "world/scan/points", "world/robot/estimate",
-                 "world/path/truth/0", "hough/accumulator", "hough/matches", "metrics/nis",
+                 "world/path/truth/recent", "hough/accumulator", "hough/matches", "metrics/nis",
                  "metrics/error/position", "log/state"):
         assert any(e == name or e.startswith(name) for e in entities), name
     n_scans = len((out / "trajectory.tum").read_text().splitlines())
     assert scan_indices(entities["world/scan/points"]) == list(range(n_scans))
     # the truth path follows the run, a pose per scan (not the file's last pose drawn once)
-    strips = [row for batch in entities["world/path/truth/0"]
-              if "LineStrips2D:strips" in batch.schema.names
-              for row in batch.column("LineStrips2D:strips").to_pylist()]
-    assert len(strips[-1][0]) >= n_scans - 2, (len(strips[-1][0]), n_scans)
+    drawn = 0  # poses drawn at the end: the last row of every entity of the path
+    for entity, batches in entities.items():
+        if entity.startswith("world/path/truth/"):
+            rows = [row for batch in batches if "LineStrips2D:strips" in batch.schema.names
+                    for row in batch.column("LineStrips2D:strips").to_pylist()]
+            drawn += sum(len(strip) - 1 for strip in rows[-1])  # blocks share their ends
+    assert drawn >= n_scans - 3, (drawn, n_scans)
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(1, 40 * PATH_PIECE))
+def test_a_path_drawn_from_its_entities_latest_values_is_the_whole_path(n: int) -> None:
+    """What the viewer shows after pose k (each entity's latest polyline, older levels first)
+    is exactly poses 0..k, with at most 2 + log2(k / PATH_PIECE) entities."""
+    path = _Path("p")
+    poses = np.column_stack((np.arange(n, dtype=float), np.arange(n, dtype=float) ** 2))
+    latest: dict[str, np.ndarray] = {}
+    for k, pose in enumerate(poses):
+        latest.update(path.append(pose))
+        if k in (0, n // 2, n - 1):
+            levels = sorted((e for e in latest if not e.endswith("recent")),
+                            key=lambda e: -int(e.split("/")[-1]))
+            blocks = [latest[e] for e in levels if len(latest[e])] + [latest["p/recent"]]
+            drawn = np.vstack([blocks[0]] + [b[1:] for b in blocks[1:]])
+            np.testing.assert_array_equal(drawn, poses[: k + 1])
+            assert len(latest) <= 2 + np.log2(max(k / PATH_PIECE, 1.0))
