@@ -44,9 +44,9 @@ at once; when not serving, the SDK gathers them into chunks of ``FILE_CHUNK_BYTE
 Paths are logged in blocks because the viewer shows the latest value of an entity: a path sent
 whole at every scan grows quadratically with the run. The newest ``PATH_PIECE`` poses are
 re-sent at every scan; older ones sit in blocks merged like a binary counter (:class:`_Path`).
-The number of entities stays logarithmic in the run: a file sink keeps an index of every chunk,
-one column per entity and component, until its footer is written, so an entity per piece would
-make a long recording's memory grow with the square of its length.
+The number of entities stays logarithmic in the run: a file sink keeps an index of every chunk
+(with a column per entity and component) until it writes the footer, and an entity per piece
+made that index grow with the run's length times the number of its pieces.
 
 Rerun's 2D views draw +y downwards (rerun issue #1387: no view coordinates for 2D views yet), so
 the world view is the map mirrored top to bottom; hovering shows true map coordinates.
