@@ -80,11 +80,21 @@ class LocalizerConfig(_Strict):
     @model_validator(mode="after")
     def _scan_odometry_sensor_known(self) -> LocalizerConfig:
         so = self.scan_odometry
-        if so.enabled and so.sensor not in self.sensors:
+        if so.enabled and so.sensor is not None and so.sensor not in self.sensors:
             known = ", ".join(self.sensors)
             raise ValueError(f"scan_odometry.sensor {so.sensor!r} is not a configured sensor "
                              f"(configured: {known})")
         return self
+
+    @property
+    def scan_odometry_sensor(self) -> str | None:
+        """The sensor whose scans correct the wheel odometry, None when none does."""
+        so = self.scan_odometry
+        if not so.enabled:
+            return None
+        if so.sensor is not None:
+            return so.sensor
+        return next((name for name, s in self.sensors.items() if s.kind == "laser"), None)
 
     @classmethod
     def from_yaml(cls, path: str | Path | None) -> LocalizerConfig:

@@ -109,8 +109,9 @@ class Localizer:
         self.stats = LocalizerStats()
         calibration = OdometryCalibration(fc.motion.translation_scale, fc.motion.rotation_scale)
         self._calibrate = None if calibration.identity else calibration
-        so = self.config.scan_odometry
-        self.scan_odometry = ScanOdometry(so, self.tracker.motion) if so.enabled else None
+        self._scan_odometry_sensor = self.config.scan_odometry_sensor
+        self.scan_odometry = (None if self._scan_odometry_sensor is None else
+                              ScanOdometry(self.config.scan_odometry, self.tracker.motion))
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
         self.logger.log_map(map)
         self._held_odometry: tuple[float, float, float, float] | None = None
@@ -240,7 +241,7 @@ class Localizer:
         # a point beyond the sensor's range is no measurement of it (and 1e300 would overflow
         # every stage after): the same rule as for a scan's ranges
         points = _to_base(points[np.hypot(points[:, 0], points[:, 1]) < cfg.max_range], cfg)
-        if self.scan_odometry is not None and sensor == self.scan_odometry.config.sensor:
+        if self.scan_odometry is not None and sensor == self._scan_odometry_sensor:
             self._correct_odometry(t, points)
         if self.manager.state is not State.TRACKING:
             return self._global_step(t, points, sensor)

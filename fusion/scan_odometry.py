@@ -43,12 +43,14 @@ _DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e
 
 
 class ScanOdometryConfig(BaseModel):
-    """Scan-to-scan matching of one laser, fused into the wheel odometry (off by default)."""
+    """Scan-to-scan matching of one laser, fused into the wheel odometry."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     enabled: bool = False
-    sensor: str = Field("laser", description="the sensor whose scans are matched")
+    sensor: str | None = Field(
+        None, description="the sensor whose scans are matched; None: the first laser configured "
+        "(none: no scan matching)")
     iterations: int = Field(20, ge=1, description="ICP iterations at most")
     max_pair_distance: float = Field(
         0.6, gt=0, description="m, pairing distance of the first iteration; it shrinks to "
@@ -57,6 +59,9 @@ class ScanOdometryConfig(BaseModel):
     max_neighbour_gap: float = Field(
         0.5, gt=0, description="m; a point farther than this from a neighbour in beam order "
         "has no normal and is not paired (the scan jumps between objects there)")
+    normal_radius: float = Field(
+        0.25, gt=0, description="m; a point's normal is fitted to its neighbours this near "
+        "(walls are straight over tens of centimetres: more neighbours, steadier normals)")
     huber: float = Field(0.03, gt=0, description="m, residuals beyond weigh less (robust ICP)")
     min_overlap: float = Field(
         0.5, gt=0, le=1, description="fraction of the scan's points paired at the end; less: the "
@@ -84,20 +89,38 @@ class IcpResult:
     overlap: float  # fraction of the current scan's points paired at the last iteration
 
 
-def scan_normals(points: NDArray[np.float64], max_gap: float
-                 ) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Unit normals of a scan in beam order (from its two neighbours), and which are usable:
-    not where a neighbour is farther than ``max_gap`` (the scan jumps from one object to
-    another there, and a normal across the jump would invent a surface)."""
-    tangent = np.empty_like(points)
-    tangent[1:-1] = points[2:] - points[:-2]
-    tangent[0], tangent[-1] = points[1] - points[0], points[-1] - points[-2]
-    normals = np.column_stack((-tangent[:, 1], tangent[:, 0]))
-    length = np.hypot(normals[:, 0], normals[:, 1])
-    gap = np.hypot(*np.diff(points, axis=0).T)
-    usable = (length > 1e-9) & (np.r_[0.0, gap] <= max_gap) & (np.r_[gap, 0.0] <= max_gap)
-    normals[usable] /= length[usable, None]
-    return normals, usable
+def scan_normals(points: NDArray[np.float64], max_gap: float, radius: float,
+                 half_window: int = 8) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Unit normals of a scan in beam order, and which are usable.
+
+    Each normal is the minor axis of the covariance of the point's neighbours within
+    ``radius`` (among the ``half_window`` beams either side, not across a jump of more than
+    ``max_gap``, where the scan passes from one object to another). A normal from the two
+    adjacent points alone turns by tens of degrees with a centimetre of range noise when the
+    beams are a centimetre or two apart: along a corridor's walls those tilts add up to
+    information along the corridor that the walls do not give. Usable: at least three
+    points in the neighbourhood."""
+    n = len(points)
+    gap = np.r_[np.hypot(*np.diff(points, axis=0).T), np.inf]
+    jump = np.r_[0, np.cumsum(gap[:-1] > max_gap)]  # the object each point belongs to
+    moments = np.zeros((6, n))
+    for offset in range(-half_window, half_window + 1):
+        lo, hi = max(0, -offset), min(n, n - offset)
+        if lo >= hi:
+            continue
+        d = points[lo + offset:hi + offset] - points[lo:hi]
+        near = ((np.hypot(d[:, 0], d[:, 1]) <= radius)
+                & (jump[lo + offset:hi + offset] == jump[lo:hi]))
+        dx, dy = d[:, 0] * near, d[:, 1] * near  # each point once per offset: plain adds
+        moments[:, lo:hi] += (near, dx, dy, dx * dx, dx * dy, dy * dy)
+    count, sx, sy, sxx, sxy, syy = moments
+    safe = np.maximum(count, 1.0)
+    cxx = sxx / safe - (sx / safe) ** 2
+    cxy = sxy / safe - (sx / safe) * (sy / safe)
+    cyy = syy / safe - (sy / safe) ** 2
+    along = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # the major axis: the surface's direction
+    normals = np.column_stack((-np.sin(along), np.cos(along)))
+    return normals, count >= 3
 
 
 def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64],
@@ -109,7 +132,8 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
     if len(previous) < config.min_points or len(current) < config.min_points:
         return None
     tree = cKDTree(previous)
-    normals, usable = scan_normals(previous, config.max_neighbour_gap)
+    normals, usable = scan_normals(previous, config.max_neighbour_gap,
+                                   config.normal_radius)
     x = np.array(guess, dtype=float)
     shrink = max(1.0, 0.6 * config.iterations)
     for iteration in range(config.iterations):
@@ -139,6 +163,7 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
     dof = max(1, int(paired.sum()) - 3)
     sigma2 = max(float(weight @ residual**2) / dof, 1e-6)
     return IcpResult(x, sigma2 * np.linalg.inv(hessian), float(paired.mean()))
+
 
 
 @dataclass(frozen=True, slots=True)

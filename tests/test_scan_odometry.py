@@ -104,6 +104,38 @@ def test_along_a_featureless_corridor_the_wheels_keep_their_say() -> None:
     assert cov[0, 0] > 25 * cov[1, 1]  # the filter learns which direction is still open
 
 
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1))
+def test_range_noise_on_a_corridors_walls_says_nothing_along_it(seed: int) -> None:
+    """With 1 cm of range noise on beams 1-2 cm apart, normals taken from two neighbouring
+    points tilt by tens of degrees, and a thousand tilted normals add up to information along
+    the corridor that its walls do not give: the match would then be sure of a motion along it.
+    Normals fitted over each point's neighbourhood leave that direction open (σ along over
+    2.5 cm for a 5 cm step, ten times the σ across; with two-point normals: 4-5 mm, twice)."""
+    rng = np.random.default_rng(seed)
+    start, motion = np.array([0.0, 0.2, 0.0]), np.array([0.05, 0.0, 0.0])
+
+    def noisy(pose: np.ndarray) -> np.ndarray:
+        points = scan_points(CORRIDOR, pose)
+        r = np.hypot(points[:, 0], points[:, 1])
+        return points * ((r + rng.normal(0.0, 0.01, len(r))) / r)[:, None]
+
+    result = point_to_line_icp(noisy(start), noisy(compose(start, motion)), motion, CONFIG)
+    assert result is not None
+    sigma = np.sqrt(np.diag(result.cov) * CONFIG.noise_scale)
+    assert sigma[0] > 0.025 and sigma[0] > 10 * sigma[1], sigma
+
+
+def test_scan_odometry_matches_the_first_laser_unless_told() -> None:
+    """With no sensor named, scan matching uses the configuration's laser; a camera-only
+    configuration has none to match, and runs on its wheels alone."""
+    assert LocalizerConfig.from_dict({"scan_odometry": {"enabled": True}}
+                                     ).scan_odometry_sensor == "laser"
+    camera_only = {"sensors": {"camera": {"kind": "camera"}}, "scan_odometry": {"enabled": True}}
+    assert LocalizerConfig.from_dict(camera_only).scan_odometry_sensor is None
+    assert LocalizerConfig.from_dict({}).scan_odometry_sensor is None  # off by default
+
+
 def test_a_match_far_from_the_wheels_is_not_believed() -> None:
     tight = ScanOdometryConfig(enabled=True, max_correction_xy=0.1)
     assert wheels_then_scan(ROOM, np.array([3.0, 2.5, 0.3]), np.array([-0.2, 0.0, 0.0]),
