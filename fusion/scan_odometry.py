@@ -43,7 +43,7 @@ _DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e
 
 
 class ScanOdometryConfig(BaseModel):
-    """Scan-to-scan matching of one laser, fused into the wheel odometry."""
+    """Scan-to-scan matching of one laser, fused into the wheel odometry (off by default)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
