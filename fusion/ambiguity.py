@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import statistics
 from collections import Counter, deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -31,6 +32,8 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
+from fusion.hypotheses import HypothesisBank, HypothesisConfig
+from fusion.tracker import PoseTracker
 from houghloc import (
     GlobalMatchConfig,
     GlobalResult,
@@ -47,6 +50,7 @@ from houghloc.global_match import Neighbourhood, to_world, wall_distance
 from houghloc.localize import clean_points
 from houghloc.matching import gate_threshold
 
+_TRACKED_FITS = 200  # accepted scans whose fits tell what a right pose fits
 _SAME_WALL_GAP = 0.05  # m: parallel references closer than this are pieces of one wall
 
 
@@ -163,6 +167,9 @@ class AmbiguityConfig(BaseModel):
         2.0, gt=0.0, description="... plus this times the distance the odometry moved since the "
         "last accepted fix (None: anywhere within local_search_xy)")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
+    hypotheses: HypothesisConfig | None = Field(
+        None, description="follow a global match's poses each with its own filter and take the "
+        "one the scans keep fitting (None: the score, tie and prior rules above)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -212,6 +219,12 @@ class AmbiguityManager:
     _guess_fits: deque = field(init=False)
     _fix_fits: deque = field(init=False)
     logger: object | None = None
+    # a filter at a pose with a covariance, for each followed hypothesis (the Localizer's own
+    # settings); None: hypotheses are not followed by filters
+    make_tracker: Callable[[NDArray, NDArray], PoseTracker] | None = None
+    _bank: HypothesisBank | None = None
+    # fractions on walls of the latest accepted scans' guesses: what a right pose fits here
+    _tracked_fits: deque = field(default_factory=lambda: deque(maxlen=_TRACKED_FITS))
 
     def __post_init__(self) -> None:
         self._line_spacing = _closest_parallel_spacing(self.map)
@@ -233,7 +246,8 @@ class AmbiguityManager:
         """Do the fit checks need the fraction of each scan's points on walls at the guess?"""
         c = self.config
         return c.max_fit_loss is not None or c.min_fit_gain is not None or \
-            c.hold_fit_ratio is not None or c.local_search_xy is not None
+            c.hold_fit_ratio is not None or c.local_search_xy is not None or \
+            c.hypotheses is not None
 
     def tracking_step(self, t: float, status: str, cov: NDArray, pose: NDArray | None = None,
                       odom: NDArray | None = None,
@@ -255,6 +269,7 @@ class AmbiguityManager:
             self._without_fix = 0
             if guess_fit is not None:
                 self._guess_fits.append(guess_fit)
+                self._tracked_fits.append(guess_fit)
         elif not self._guess_holds(guess_fit):
             self._without_fix += 1
         if self._without_fix >= self.config.max_scans_without_fix:
@@ -439,7 +454,11 @@ class AmbiguityManager:
         each is also followed on every scan (``hough`` settings) and scored by how well the scan
         fits it: the tie breaks as soon as the views stop fitting all of them equally."""
         odom = np.asarray(odom, float)
-        if self.hypotheses and hough is not None:
+        if self._bank is not None and hough is not None:
+            decision = self._follow_bank(t, odom, points, hough)
+            if decision.reset_pose is not None:
+                return decision
+        elif self.hypotheses and hough is not None:
             decision = self._follow_ties(t, odom, points, kinds, hough)
             if decision.reset_pose is not None:
                 return decision
@@ -453,6 +472,8 @@ class AmbiguityManager:
         # tens of scans, and the same views rarely give a different answer
         backoff = max(0, self._failures - self.config.failures_until_lost + 1)
         wait = self.config.retry_every * 2 ** min(backoff, 2) if self._failures else 0
+        if self._bank is not None:  # followed poses are being weighed: new ones now and then
+            wait = max(wait, self.config.retry_every)
         if len(self._views) < self.config.min_views or self._since_attempt < wait:
             return Decision()
         self._since_attempt = 0
@@ -462,9 +483,71 @@ class AmbiguityManager:
         _, _, lines = observe_lines(pts, self.config.global_match.hough)
         result = global_match(lines, pts, self.map, self.config.global_match, kinds=kinds)
         self.counts["global_matches"] += 1
+        if self.config.hypotheses is not None and self.make_tracker is not None:
+            return self._seed_bank(t, result, previous)
         decision = self._decide(t, result, previous)
         decision.result = result
         return decision
+
+    def _seed_bank(self, t: float, result: GlobalResult, previous: State) -> Decision:
+        """Follow the match's poses, each with its own filter (:mod:`fusion.hypotheses`)."""
+        hyps = result.hypotheses
+        if not hyps:
+            self._failures += 1
+            lost = self._failures >= self.config.failures_until_lost
+            self._go(t, State.LOST if lost else State.COLLECTING,
+                     f"no global hypothesis ({result.reason or 'none'})")
+            return Decision(result=result)
+        assert self.config.hypotheses is not None and self.make_tracker is not None
+        if self._bank is None:
+            self._bank = HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
+                                        self.fit_fractions)
+        covs = [0.5 * (np.asarray(h.cov, float) + np.asarray(h.cov, float).T)
+                + self._reinit_floor for h in hyps]
+        poses = [np.asarray(h.pose, float) for h in hyps]
+        self._bank.seed(t, self._views[-1].odom, poses, covs,
+                        [h.score * self._displacement_prior(pose) for h, pose in zip(
+                            hyps, poses, strict=True)])
+        self._log_hypotheses(t, hyps[:len(self._bank)])
+        self._go(t, State.COLLECTING,
+                 f"following {len(self._bank)} hypotheses (best score {hyps[0].score:.2f})")
+        return Decision(result=result)
+
+    def _least_right_fit(self) -> float | None:
+        """The fit that all but ``fit_quantile`` of the accepted scans reached (None before 20
+        of them): a pose taken must fit at least as well as tracking usually did."""
+        assert self.config.hypotheses is not None
+        if len(self._tracked_fits) < 20:
+            return None
+        return float(np.quantile(np.fromiter(self._tracked_fits, float),
+                                 self.config.hypotheses.fit_quantile))
+
+    def _displacement_prior(self, pose: NDArray) -> float:
+        """How plausible a pose is from where tracking last was, carried by odometry:
+        N(d; 0, ``kidnap_prior_sigma``²) in the distance d, over a floor of 1 % for a robot
+        carried anywhere; 1 without a belief (global start)."""
+        sigma = self.config.kidnap_prior_sigma
+        if sigma is None or self._prior is None or not self._views:
+            return 1.0
+        belief, _, odom = self._prior
+        moved = compose(belief, relative(odom, self._views[-1].odom))
+        d = math.hypot(pose[0] - moved[0], pose[1] - moved[1])
+        return max(math.exp(-0.5 * (d / sigma) ** 2), 0.01)
+
+    def _follow_bank(self, t: float, odom: NDArray, points: NDArray,
+                     hough: HoughConfig) -> Decision:
+        """One scan for every followed hypothesis; the pose when one is taken."""
+        assert self._bank is not None
+        verdict = self._bank.step(t, odom, points, hough, self._least_right_fit())
+        if verdict.pose is not None and verdict.cov is not None:
+            self._bank = None
+            self._failures = 0
+            self.hypotheses = []
+            self._views.clear()
+            self._without_fix = 0
+            self._go(t, State.TRACKING, f"relocalized: {verdict.reason}")
+            return Decision(verdict.pose, verdict.cov)
+        return Decision()
 
     def _moved_since_last_view(self, odom: NDArray) -> bool:
         step = relative(self._views[-1].odom, odom)
@@ -678,6 +761,7 @@ class AmbiguityManager:
             return
         if new is State.COLLECTING and self.state is State.TRACKING:
             self._views.clear()
+            self._bank = None
             self._failures = 0
             self._since_attempt = 0
             if self._trusted_by_prior_only:  # it may have been the wrong one of the tie

@@ -112,13 +112,20 @@ class Localizer:
         self._scan_odometry_sensor = self.config.scan_odometry_sensor
         self.scan_odometry = (None if self._scan_odometry_sensor is None else
                               ScanOdometry(self.config.scan_odometry, self.tracker.motion))
-        self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger)
+        self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
+                                        make_tracker=self._tracker_at)
         self.logger.log_map(map)
         self._held_odometry: tuple[float, float, float, float] | None = None
         self._start_reason = "initial pose given"
         if initial_pose is None:
             self.manager.start_lost(0.0, "no initial pose: global localization")
             self._start_reason = "no initial pose: global localization"
+
+    def _tracker_at(self, pose: NDArray[np.float64], cov: NDArray[np.float64]) -> PoseTracker:
+        """A filter with this localizer's settings at a pose (a followed hypothesis's)."""
+        fc = self.config.filter
+        return PoseTracker(pose, cov, fc.motion, fc.history_seconds, fc.gate_probability,
+                           fc.delayed_updates)
 
     def _check_initial_pose(self, pose: NDArray[np.float64]) -> None:
         """A ValueError for a pose that is no pose, or so far from the map that no sensor of

@@ -1,0 +1,220 @@
+"""Several pose hypotheses tracked at once, each by its own filter, weighted by how the scans fit.
+
+Global set matching (the paper's strategy (ii)) proposes poses from accumulated views; its score
+alone cannot tell a right pose from a wrong one in a building whose rooms and corridors repeat
+(docs/experiments.md: right poses score 0.29–0.77, wrong ones 0.31–0.65 on seattle). What does
+tell them apart is time: a right pose keeps fitting the scans as the robot moves, a wrong one
+falls behind within a few scans. So each proposed pose gets its own :class:`PoseTracker` with the
+Hough fixes as measurements, and a weight updated by Bayes' rule with every scan::
+
+    w_h ← w_h · L_h / Σ_k w_k · L_k,      L_h = max(f_h, f_min)^n
+
+``f_h`` the fraction of the scan's points on the map's walls at the hypothesis's pose after its
+fix (a likelihood field with a box kernel: cheap, and a person or a cupboard in front of the
+laser lowers every hypothesis alike), ``f_min`` the likelihood of a scan that lands on no wall
+at all (glass, crowds), which keeps one bad scan from wiping out a right pose, and ``n`` the
+number of independent observations a scan is worth (its points on one wall err together, so a
+scan of 360 points is worth far fewer). Weights are updated only once the robot has moved
+since the last update (as AMCL does): scans from one place repeat one observation. Hypotheses that
+meet are merged (their weights add), those whose weight falls below a probability are dropped,
+and one whose weight reaches the acceptance probability is the pose, provided its scans fit
+about as well as tracking's did: when no proposed pose is right, the best of them still gets
+most of the weight.
+
+References: Arras, Castellanos, Tomatis, Siegwart, "Feature-based multi-hypothesis localization
+and tracking using geometric constraints", RAS 44 (2003); Jensfelt & Kristensen, "Active global
+localization for a mobile robot using multiple hypothesis tracking", IEEE T-RA 17(5) (2001).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from fusion.tracker import PoseTracker
+from houghloc import HoughConfig, localize_scan
+from houghloc.geometry import relative, wrap_scalar
+from houghloc.matching import gate_threshold
+from houghloc.segment_map import SegmentMap
+
+_RECENT = 10  # fits kept per hypothesis, for the verdict's recent mean
+
+
+class HypothesisConfig(BaseModel):
+    """How proposed poses are followed and chosen."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    max_hypotheses: int = Field(
+        8, ge=1, description="a global match's best poses followed at once (each costs a Hough "
+        "fix per scan)")
+    accept_probability: float = Field(
+        0.95, gt=0.5, lt=1.0, description="a hypothesis whose weight reaches this is the pose "
+        "(19 : 1 against all others together)")
+    prune_probability: float = Field(
+        1e-3, gt=0.0, lt=0.5, description="a hypothesis whose weight falls below this is dropped")
+    merge_probability: float = Field(
+        0.99, gt=0.5, lt=1.0, description="two hypotheses within this χ²(3) quantile of their "
+        "joint covariance are one pose")
+    min_fit: float = Field(
+        0.02, gt=0.0, lt=1.0, description="likelihood of a scan that lands on no wall at all "
+        "(glass, a crowd): one such scan does not rule a pose out")
+    min_scans: int = Field(
+        2, ge=1, le=_RECENT, description="weighed scans a hypothesis needs before it may be "
+        "taken: the match's own views are what proposed it")
+    fit_quantile: float = Field(
+        0.05, ge=0.0, lt=1.0, description="the pose taken must put as many of its scans' points "
+        "on walls as all but this fraction of tracking's accepted scans did: when no proposed "
+        "pose is right, the best of them still gets most of the weight")
+    independent_points: float = Field(
+        30.0, gt=0.0, description="independent observations a scan is worth: L = f^n")
+    update_distance: float = Field(
+        0.1, ge=0.0, description="m travelled (or update_angle_deg turned) between weight "
+        "updates: a robot standing still adds no evidence")
+    update_angle_deg: float = Field(5.0, ge=0.0)
+
+
+@dataclass
+class Hypothesis:
+    """One followed pose: its filter, its weight, the fits of its latest weighed scans and how
+    many it has been weighed on."""
+
+    tracker: PoseTracker
+    weight: float
+    fits: deque[float] = field(default_factory=lambda: deque(maxlen=_RECENT))
+    updates: int = 0
+
+    @property
+    def pose(self) -> NDArray[np.float64]:
+        return self.tracker.pose
+
+    @property
+    def cov(self) -> NDArray[np.float64]:
+        return self.tracker.cov
+
+
+@dataclass
+class BankVerdict:
+    """After a scan: the pose taken (None while undecided) and why."""
+
+    pose: NDArray[np.float64] | None = None
+    cov: NDArray[np.float64] | None = None
+    reason: str = ""
+
+
+class HypothesisBank:
+    """The hypotheses proposed by global matches, followed until one is the pose."""
+
+    def __init__(self, map: SegmentMap, config: HypothesisConfig,
+                 make_tracker: Callable[[NDArray[np.float64], NDArray[np.float64]], PoseTracker],
+                 fit: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
+                 ) -> None:
+        """``make_tracker(pose, cov)``: a filter at a pose; ``fit(poses, points)``: the fraction
+        of the points (robot frame) on walls at each of the P×3 poses."""
+        self.map = map
+        self.config = config
+        self._make_tracker = make_tracker
+        self._fit = fit
+        self._merge_gate = gate_threshold(config.merge_probability, 3)
+        self.hypotheses: list[Hypothesis] = []
+        self._last_update: NDArray[np.float64] | None = None  # odometry at the last weighing
+
+    def __len__(self) -> int:
+        return len(self.hypotheses)
+
+    def seed(self, t: float, odom: NDArray[np.float64], poses: list[NDArray[np.float64]],
+             covs: list[NDArray[np.float64]], scores: list[float]) -> None:
+        """Follow ``poses`` (at time ``t``, the odometry then ``odom``) from now on, weighted by
+        their match ``scores`` to begin with."""
+        # poses proposed while others are followed join them as newcomers: what the followed
+        # ones have earned is kept (a newcomer that is one of them merges into it), and a new
+        # pose that the latest views fit as well as the best is as plausible as the leader
+        if self.hypotheses:
+            scale = max(h.weight for h in self.hypotheses) / max(max(scores), 1e-6)
+        else:
+            scale = 1.0 / (sum(scores) or 1.0)
+        for pose, cov, score in list(zip(poses, covs, scores, strict=True))[
+                :self.config.max_hypotheses]:
+            tracker = self._make_tracker(np.asarray(pose, float), np.asarray(cov, float))
+            tracker.on_odometry(t, *odom)
+            self.hypotheses.append(Hypothesis(tracker, scale * max(score, 1e-6)))
+        if self._last_update is None:
+            self._last_update = np.asarray(odom, float).copy()
+        self._merge()
+        self._prune()
+
+    def step(self, t: float, odom: NDArray[np.float64], points: NDArray[np.float64],
+             hough: HoughConfig, least_fit: float | None) -> BankVerdict:
+        """One scan: predict each hypothesis to ``t`` with the odometry, fix it with the scan's
+        lines, weigh it by the scan's fit there; merge, prune, and take the leader when its
+        weight and its fits allow (``least_fit``: the least a right pose fits, if known)."""
+        if not self.hypotheses or len(points) == 0:
+            return BankVerdict()
+        for h in self.hypotheses:
+            h.tracker.on_odometry(t, *odom)
+            guess, guess_cov = h.tracker.pose, h.tracker.cov
+            fix = localize_scan(points, self.map, guess, hough, pose_cov=guess_cov)
+            if fix.rank > 0 and not fix.ambiguous:
+                h.tracker.apply(t, fix.pose, fix.cov, fix.observable)
+        if not self._moved(odom):
+            return BankVerdict()
+        self._last_update = np.asarray(odom, float).copy()
+        fits = self._fit(np.array([h.pose for h in self.hypotheses]), points)
+        log_l = self.config.independent_points * np.log(np.maximum(fits, self.config.min_fit))
+        weights = np.array([h.weight for h in self.hypotheses]) * np.exp(log_l - log_l.max())
+        weights /= weights.sum()
+        for h, w, f in zip(self.hypotheses, weights, fits, strict=True):
+            h.weight = float(w)
+            h.fits.append(float(f))
+            h.updates += 1
+        self._merge()
+        self._prune()
+        return self._verdict(least_fit)
+
+    def _moved(self, odom: NDArray[np.float64]) -> bool:
+        if self._last_update is None:
+            return True
+        step = relative(self._last_update, np.asarray(odom, float))
+        return (math.hypot(step[0], step[1]) >= self.config.update_distance
+                or abs(step[2]) >= math.radians(self.config.update_angle_deg))
+
+    def _merge(self) -> None:
+        """Hypotheses that have converged on one pose become one (the heavier keeps its
+        filter; the weights add)."""
+        kept: list[Hypothesis] = []
+        for h in sorted(self.hypotheses, key=lambda h: -h.weight):
+            for k in kept:
+                gap = h.pose - k.pose
+                gap[2] = wrap_scalar(gap[2])
+                if float(gap @ np.linalg.solve(h.cov + k.cov, gap)) <= self._merge_gate:
+                    k.weight += h.weight
+                    break
+            else:
+                kept.append(h)
+        self.hypotheses = kept
+
+    def _prune(self) -> None:
+        floor = self.config.prune_probability
+        kept = [h for h in self.hypotheses if h.weight >= floor] or self.hypotheses[:1]
+        total = sum(h.weight for h in kept)
+        for h in kept:
+            h.weight /= total
+        self.hypotheses = kept
+
+    def _verdict(self, least_fit: float | None) -> BankVerdict:
+        leader = max(self.hypotheses, key=lambda h: h.weight)
+        c = self.config
+        if leader.weight < c.accept_probability or leader.updates < c.min_scans:
+            return BankVerdict()
+        recent = float(np.mean(list(leader.fits)[-c.min_scans:]))
+        if least_fit is not None and recent < least_fit:
+            return BankVerdict()  # the best of poses that all fit poorly: none is right
+        return BankVerdict(leader.pose.copy(), leader.cov.copy(),
+                           f"hypothesis of weight {leader.weight:.3f} after {leader.updates} "
+                           f"scans (recent fit {recent:.2f}), {len(self.hypotheses)} followed")
