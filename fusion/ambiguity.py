@@ -68,9 +68,10 @@ class AmbiguityConfig(BaseModel):
 
     max_scans_without_fix: int = Field(
         5, ge=1, description="consecutive scans rejected, ambiguous or unmatched")
-    max_position_sigma_fraction: float = Field(
+    max_position_sigma_fraction: float | None = Field(
         0.5, gt=0.0, description="σ_xy beyond this fraction of the closest parallel-line "
-        "spacing makes nearest-neighbour matching unsafe")
+        "spacing makes nearest-neighbour matching unsafe (None: no such check; on a real map "
+        "the spacing of two pieces of one wall is centimetres)")
     min_views: int = Field(5, ge=1, description="views accumulated before a global match")
     max_views: int = Field(30, ge=1, description="sliding window of accumulated views")
     view_spacing: float = Field(
@@ -276,8 +277,10 @@ class AmbiguityManager:
             self._go(t, State.COLLECTING,
                      f"{self._without_fix} scans without a usable fix (last: {status})")
             return
-        sigma = math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
         fraction = self.config.max_position_sigma_fraction
+        if fraction is None:
+            return
+        sigma = math.sqrt(max(np.linalg.eigvalsh(cov[:2, :2])[-1], 0.0))
         if in_view is None:
             spacing = self._line_spacing
         elif sigma > fraction * _SAME_WALL_GAP:
@@ -505,13 +508,32 @@ class AmbiguityManager:
         covs = [0.5 * (np.asarray(h.cov, float) + np.asarray(h.cov, float).T)
                 + self._reinit_floor for h in hyps]
         poses = [np.asarray(h.pose, float) for h in hyps]
-        self._bank.seed(t, self._views[-1].odom, poses, covs,
-                        [h.score * self._displacement_prior(pose) for h, pose in zip(
-                            hyps, poses, strict=True)])
+        self._bank.seed(t, self._views[-1].odom, poses, covs, [h.score for h in hyps],
+                        [self._displacement_prior(pose) for pose in poses])
         self._log_hypotheses(t, hyps[:len(self._bank)])
         self._go(t, State.COLLECTING,
                  f"following {len(self._bank)} hypotheses (best score {hyps[0].score:.2f})")
         return Decision(result=result)
+
+    def _follow_belief(self, t: float) -> None:
+        """Tracking given up: its belief becomes the first followed hypothesis. Scans that
+        did not fit for a while are evidence against it, not proof: if it keeps fitting it is
+        taken back within a few scans, and a wrong one falls behind the poses global matching
+        proposes (no rule decides between giving up too early and too late)."""
+        if self.config.hypotheses is None or self.make_tracker is None or self._prior is None:
+            return
+        pose, cov, odom = self._prior
+        self._bank = HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
+                                    self.fit_fractions)
+        self._bank.seed(t, odom, [pose], [cov], [1.0], origin="tracked")
+
+    @property
+    def leading_hypothesis(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """The pose and covariance of the likeliest followed hypothesis, None if none is."""
+        if self._bank is None or not len(self._bank):
+            return None
+        leader = self._bank.leader
+        return leader.pose, leader.cov
 
     def _least_right_fit(self) -> float | None:
         """The fit that all but ``fit_quantile`` of the accepted scans reached (None before 20
@@ -764,6 +786,7 @@ class AmbiguityManager:
             self._bank = None
             self._failures = 0
             self._since_attempt = 0
+            self._follow_belief(t)
             if self._trusted_by_prior_only:  # it may have been the wrong one of the tie
                 self._last_trusted = None
                 self._trusted_by_prior_only = False

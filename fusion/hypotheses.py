@@ -19,7 +19,9 @@ since the last update (as AMCL does): scans from one place repeat one observatio
 meet are merged (their weights add), those whose weight falls below a probability are dropped,
 and one whose weight reaches the acceptance probability is the pose, provided its scans fit
 about as well as tracking's did: when no proposed pose is right, the best of them still gets
-most of the weight.
+most of the weight. Tracking's belief when it was given up is followed too, from the start: a
+right belief is taken back, a wrong one falls behind; but no pose is taken before a global match
+has proposed rivals to it.
 
 References: Arras, Castellanos, Tomatis, Siegwart, "Feature-based multi-hypothesis localization
 and tracking using geometric constraints", RAS 44 (2003); Jensfelt & Kristensen, "Active global
@@ -87,6 +89,7 @@ class Hypothesis:
 
     tracker: PoseTracker
     weight: float
+    origin: str  # "tracked" (the belief when tracking was given up) or "global match"
     fits: deque[float] = field(default_factory=lambda: deque(maxlen=_RECENT))
     updates: int = 0
 
@@ -124,26 +127,36 @@ class HypothesisBank:
         self._merge_gate = gate_threshold(config.merge_probability, 3)
         self.hypotheses: list[Hypothesis] = []
         self._last_update: NDArray[np.float64] | None = None  # odometry at the last weighing
+        # a pose is taken only once global matching has proposed rivals to it: tracking's own
+        # belief, alone, would be taken back by the fits it learnt while it was wrong
+        self._contested = False
 
     def __len__(self) -> int:
         return len(self.hypotheses)
 
     def seed(self, t: float, odom: NDArray[np.float64], poses: list[NDArray[np.float64]],
-             covs: list[NDArray[np.float64]], scores: list[float]) -> None:
+             covs: list[NDArray[np.float64]], scores: list[float],
+             priors: list[float] | None = None, origin: str = "global match") -> None:
         """Follow ``poses`` (at time ``t``, the odometry then ``odom``) from now on, weighted by
-        their match ``scores`` to begin with."""
+        their match ``scores`` times their ``priors`` (how plausible each place is before any
+        view: 1 each if not given) to begin with; ``origin`` says where they come from."""
+        priors = [1.0] * len(poses) if priors is None else priors
+        self._contested |= origin == "global match"
         # poses proposed while others are followed join them as newcomers: what the followed
-        # ones have earned is kept (a newcomer that is one of them merges into it), and a new
-        # pose that the latest views fit as well as the best is as plausible as the leader
+        # ones have earned is kept (a newcomer that is one of them merges into it), and the
+        # likeliest new pose is as plausible as the leader: the prior ranks the newcomers
+        # among themselves only, since the place it is centred on (the belief when tracking
+        # was given up) may be the wrong one the bank is there to replace
         if self.hypotheses:
-            scale = max(h.weight for h in self.hypotheses) / max(max(scores), 1e-6)
+            scale = max(h.weight for h in self.hypotheses) / max(
+                max(s * p for s, p in zip(scores, priors, strict=True)), 1e-6)
         else:
-            scale = 1.0 / (sum(scores) or 1.0)
-        for pose, cov, score in list(zip(poses, covs, scores, strict=True))[
+            scale = 1.0 / (sum(s * p for s, p in zip(scores, priors, strict=True)) or 1.0)
+        for pose, cov, score, prior in list(zip(poses, covs, scores, priors, strict=True))[
                 :self.config.max_hypotheses]:
             tracker = self._make_tracker(np.asarray(pose, float), np.asarray(cov, float))
             tracker.on_odometry(t, *odom)
-            self.hypotheses.append(Hypothesis(tracker, scale * max(score, 1e-6)))
+            self.hypotheses.append(Hypothesis(tracker, scale * max(score * prior, 1e-6), origin))
         if self._last_update is None:
             self._last_update = np.asarray(odom, float).copy()
         self._merge()
@@ -207,14 +220,21 @@ class HypothesisBank:
             h.weight /= total
         self.hypotheses = kept
 
+    @property
+    def leader(self) -> Hypothesis:
+        """The likeliest hypothesis (the bank must not be empty)."""
+        return max(self.hypotheses, key=lambda h: h.weight)
+
     def _verdict(self, least_fit: float | None) -> BankVerdict:
-        leader = max(self.hypotheses, key=lambda h: h.weight)
+        leader = self.leader
         c = self.config
-        if leader.weight < c.accept_probability or leader.updates < c.min_scans:
+        if (not self._contested or leader.weight < c.accept_probability
+                or leader.updates < c.min_scans):
             return BankVerdict()
         recent = float(np.mean(list(leader.fits)[-c.min_scans:]))
         if least_fit is not None and recent < least_fit:
             return BankVerdict()  # the best of poses that all fit poorly: none is right
         return BankVerdict(leader.pose.copy(), leader.cov.copy(),
-                           f"hypothesis of weight {leader.weight:.3f} after {leader.updates} "
-                           f"scans (recent fit {recent:.2f}), {len(self.hypotheses)} followed")
+                           f"{leader.origin} hypothesis of weight {leader.weight:.3f} after "
+                           f"{leader.updates} scans (recent fit {recent:.2f}), "
+                           f"{len(self.hypotheses)} followed")

@@ -356,12 +356,16 @@ class Localizer:
         if decision.reset_pose is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov)
             return self._finish(t, "relocalized", None, None, sensor, points)
-        return self._finish(t, self.manager.state.value, None, None, sensor, points)
+        leading = self.manager.leading_hypothesis
+        return self._finish(t, self.manager.state.value, None, None, sensor, points, leading)
 
     def _finish(self, t: float, status: str, fix: ScanCorrection | None,
-                outcome: UpdateOutcome | None, sensor: str, points: NDArray) -> Estimate:
+                outcome: UpdateOutcome | None, sensor: str, points: NDArray,
+                leading: tuple[NDArray, NDArray] | None = None) -> Estimate:
+        """The estimate at ``t``: the filter's, or while several hypotheses are followed the
+        ``leading`` one's (the likeliest pose; its status says it is not yet taken)."""
         self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
-        at_t = self.tracker.pose_at(t)
+        at_t = leading if leading is not None else self.tracker.pose_at(t)
         pose, cov = at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
         estimate = Estimate(t, pose, cov, status, fix, outcome)
         self.logger.log_scan(t, self.stats.scans - 1, sensor, points, fix, estimate)
