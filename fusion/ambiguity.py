@@ -487,12 +487,12 @@ class AmbiguityManager:
         result = global_match(lines, pts, self.map, self.config.global_match, kinds=kinds)
         self.counts["global_matches"] += 1
         if self.config.hypotheses is not None and self.make_tracker is not None:
-            return self._seed_bank(t, result, previous)
+            return self._seed_bank(t, result)
         decision = self._decide(t, result, previous)
         decision.result = result
         return decision
 
-    def _seed_bank(self, t: float, result: GlobalResult, previous: State) -> Decision:
+    def _seed_bank(self, t: float, result: GlobalResult) -> Decision:
         """Follow the match's poses, each with its own filter (:mod:`fusion.hypotheses`)."""
         hyps = result.hypotheses
         if not hyps:
@@ -501,10 +501,8 @@ class AmbiguityManager:
             self._go(t, State.LOST if lost else State.COLLECTING,
                      f"no global hypothesis ({result.reason or 'none'})")
             return Decision(result=result)
-        assert self.config.hypotheses is not None and self.make_tracker is not None
         if self._bank is None:
-            self._bank = HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
-                                        self.fit_fractions)
+            self._bank = self._new_bank()
         covs = [0.5 * (np.asarray(h.cov, float) + np.asarray(h.cov, float).T)
                 + self._reinit_floor for h in hyps]
         poses = [np.asarray(h.pose, float) for h in hyps]
@@ -515,6 +513,11 @@ class AmbiguityManager:
                  f"following {len(self._bank)} hypotheses (best score {hyps[0].score:.2f})")
         return Decision(result=result)
 
+    def _new_bank(self) -> HypothesisBank:
+        assert self.config.hypotheses is not None and self.make_tracker is not None
+        return HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
+                              self.fit_fractions)
+
     def _follow_belief(self, t: float) -> None:
         """Tracking given up: its belief becomes the first followed hypothesis. Scans that
         did not fit for a while are evidence against it, not proof: if it keeps fitting it is
@@ -523,8 +526,7 @@ class AmbiguityManager:
         if self.config.hypotheses is None or self.make_tracker is None or self._prior is None:
             return
         pose, cov, odom = self._prior
-        self._bank = HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
-                                    self.fit_fractions)
+        self._bank = self._new_bank()
         self._bank.seed(t, odom, [pose], [cov], [1.0], origin="tracked")
 
     @property
