@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from fusion.hypotheses import HypothesisBank, HypothesisConfig
+from fusion.hypotheses import BankVerdict, HypothesisBank, HypothesisConfig
 from fusion.tracker import PoseTracker
 from houghloc import (
     GlobalMatchConfig,
@@ -67,9 +67,9 @@ class AmbiguityConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     max_scans_without_fix: int = Field(
-        5, ge=1, description="consecutive scans rejected, ambiguous or unmatched")
+        25, ge=1, description="consecutive scans rejected, ambiguous or unmatched")
     max_position_sigma_fraction: float | None = Field(
-        0.5, gt=0.0, description="σ_xy beyond this fraction of the closest parallel-line "
+        None, gt=0.0, description="σ_xy beyond this fraction of the closest parallel-line "
         "spacing makes nearest-neighbour matching unsafe (None: no such check; on a real map "
         "the spacing of two pieces of one wall is centimetres)")
     min_views: int = Field(5, ge=1, description="views accumulated before a global match")
@@ -111,17 +111,17 @@ class AmbiguityConfig(BaseModel):
     # fixes whose lines disagree (a map wall modelled a degree off) that put clearly more points
     # on walls than the guess were right in 4 of 5 cases: the odometry had slipped in a turn.
     max_fit_loss: float | None = Field(
-        None, ge=0.0, le=1.0, description="a fix whose fraction of points on walls is below "
+        0.03, ge=0.0, le=1.0, description="a fix whose fraction of points on walls is below "
         "the guess's by more than this is a misfit (None: no such check)")
     min_fit_gain: float | None = Field(
-        None, ge=0.0, le=1.0, description="a fix from too few lines, or flagged ambiguous, is "
+        0.03, ge=0.0, le=1.0, description="a fix from too few lines, or flagged ambiguous, is "
         "used when its fraction on walls beats the guess's by this much (None: never)")
     # A robot whose predicted pose keeps the scan on the walls as well as when fixes were
     # accepted is not lost, however many scans the matcher cannot use (a wall modelled a degree
     # off makes two lines "disagree" for seconds): such scans do not count towards
     # max_scans_without_fix.
     hold_fit_ratio: float | None = Field(
-        None, gt=0.0, le=1.0, description="a scan without a fix whose guess has at least this "
+        0.9, gt=0.0, le=1.0, description="a scan without a fix whose guess has at least this "
         "times the recent accepted scans' fraction on walls does not count as a failure")
     # After a kidnap the pose is more plausibly near where the robot was last known to be than
     # across the building: a displacement prior N(0, σ²) about the last trusted pose (carried by
@@ -138,7 +138,7 @@ class AmbiguityConfig(BaseModel):
     # motion the odometry did not report (driving backwards) leaves the robot near it, where the
     # rest of the building cannot compete.
     local_search_xy: float | None = Field(
-        None, gt=0.0, description="m; radius of the local re-search (None: no local search)")
+        1.0, gt=0.0, description="m; radius of the local re-search (None: no local search)")
     local_search_theta_deg: float = Field(20.0, gt=0.0, le=180.0)
     # What keeps a wrong pose out is a rival, not a level: a cluttered room fits 0.45-0.7 at the
     # right pose where a corridor fits 0.8, so a pose needing 0.9 of the recent fixes' fraction
@@ -169,8 +169,9 @@ class AmbiguityConfig(BaseModel):
         "last accepted fix (None: anywhere within local_search_xy)")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
     hypotheses: HypothesisConfig | None = Field(
-        None, description="follow a global match's poses each with its own filter and take the "
-        "one the scans keep fitting (None: the score, tie and prior rules above)")
+        HypothesisConfig(), description="follow a global match's poses each with its own "
+        "filter and take the one the scans keep fitting (None: the score, tie and prior rules "
+        "above)")
 
 
 @dataclass(frozen=True, slots=True)
@@ -300,6 +301,8 @@ class AmbiguityManager:
             return False
         if fix_fit is None:
             return not self._guess_holds(guess_fit)
+        if not self._fix_fits:  # no fix used yet: nothing says how well one usually fits
+            return False
         ratio = self.config.hold_fit_ratio or 1.0
         return fix_fit < ratio * statistics.median(self._fix_fits)
 
@@ -530,6 +533,14 @@ class AmbiguityManager:
         self._bank.seed(t, odom, [pose], [cov], [1.0], origin="tracked")
 
     @property
+    def followed(self) -> list[tuple[NDArray[np.float64], float]]:
+        """Every followed hypothesis's pose and weight, likeliest first (none while tracking)."""
+        if self._bank is None:
+            return []
+        return [(h.pose.copy(), h.weight)
+                for h in sorted(self._bank.hypotheses, key=lambda h: -h.weight)]
+
+    @property
     def leading_hypothesis(self) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """The pose and covariance of the likeliest followed hypothesis, None if none is."""
         if self._bank is None or not len(self._bank):
@@ -562,16 +573,19 @@ class AmbiguityManager:
                      hough: HoughConfig) -> Decision:
         """One scan for every followed hypothesis; the pose when one is taken."""
         assert self._bank is not None
-        verdict = self._bank.step(t, odom, points, hough, self._least_right_fit())
-        if verdict.pose is not None and verdict.cov is not None:
-            self._bank = None
-            self._failures = 0
-            self.hypotheses = []
-            self._views.clear()
-            self._without_fix = 0
-            self._go(t, State.TRACKING, f"relocalized: {verdict.reason}")
-            return Decision(verdict.pose, verdict.cov)
-        return Decision()
+        return self._take(t, self._bank.step(t, odom, points, hough, self._least_right_fit()))
+
+    def _take(self, t: float, verdict: BankVerdict, why: str = "") -> Decision:
+        """The bank's pose, if its verdict names one: tracking starts again from it."""
+        if verdict.pose is None or verdict.cov is None:
+            return Decision()
+        self._bank = None
+        self._failures = 0
+        self.hypotheses = []
+        self._views.clear()
+        self._without_fix = 0
+        self._go(t, State.TRACKING, f"relocalized: {verdict.reason}{why}")
+        return Decision(verdict.pose, verdict.cov)
 
     def _moved_since_last_view(self, odom: NDArray) -> bool:
         step = relative(self._views[-1].odom, odom)
@@ -682,8 +696,13 @@ class AmbiguityManager:
     def landmark_step(self, t: float, odom: NDArray, position: tuple[float, float],
                       bearing: float, label: str, tolerance: float = math.radians(15.0)
                       ) -> Decision:
-        """A recognised landmark seen at ``bearing``: tied hypotheses that would see it
-        elsewhere are dropped; when one is left, it is the pose."""
+        """A recognised landmark seen at ``bearing``: followed hypotheses are weighed by it
+        (``tolerance`` is its 3σ); tied hypotheses that would see it elsewhere are dropped.
+        When one is left, or one's weight is enough, it is the pose."""
+        if self._bank is not None:
+            verdict = self._bank.weigh_bearing(t, np.asarray(odom, float), position, bearing,
+                                               tolerance / 3.0, self._least_right_fit())
+            return self._take(t, verdict, f" after {label} at {math.degrees(bearing):.0f}°")
         hyps = self.carried_hypotheses(odom)
         if not hyps:
             return Decision()

@@ -39,7 +39,7 @@ class SensorConfig(_Strict):
     max_range: float = Field(20.0, gt=0.0, description="returns at or beyond mean no return")
     hough: HoughConfig = HoughConfig()
     min_fix_lines: int = Field(
-        1, ge=1, description="matched lines a fix needs to be used: a single line cannot be "
+        2, ge=1, description="matched lines a fix needs to be used: a single line cannot be "
         "checked against another, and in clutter it is often matched to a near-parallel wall")
 
     @model_validator(mode="after")
@@ -57,9 +57,10 @@ class FilterConfig(_Strict):
     """The EKF and its history of delayed measurements (DESIGN §4)."""
 
     motion: OdometryMotionConfig = OdometryMotionConfig()
-    initial_sigma_xy: float = Field(0.1, gt=0.0, description="m, with --initial-pose")
-    initial_sigma_theta_deg: float = Field(3.0, gt=0.0)
-    gate_probability: float = Field(0.999, gt=0.5, lt=1.0, description="NIS gate")
+    initial_sigma_xy: float = Field(0.05, gt=0.0, description="m, with --initial-pose")
+    initial_sigma_theta_deg: float = Field(1.0, gt=0.0)
+    gate_probability: float = Field(
+        0.9999, gt=0.5, lt=1.0, description="NIS gate: χ² probability that a right fix passes")
     history_seconds: float = Field(2.0, gt=0.0, description="how late a measurement may be")
     delayed_updates: bool = Field(True, description="apply late measurements at their own time")
 

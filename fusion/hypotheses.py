@@ -190,6 +190,30 @@ class HypothesisBank:
         self._prune()
         return self._verdict(least_fit)
 
+    def weigh_bearing(self, t: float, odom: NDArray[np.float64], position: tuple[float, float],
+                      bearing: float, sigma: float, least_fit: float | None) -> BankVerdict:
+        """A landmark known to be at ``position`` seen at ``bearing`` (σ ``sigma``) at time
+        ``t``: Bayes' rule with each hypothesis's predicted bearing β̂_h,
+
+            L_h = max(exp(−½ ((bearing − β̂_h)/σ)²), f_min^n)
+
+        (floored like a scan's likelihood: one misrecognised landmark does not rule a pose
+        out); then the leader is taken when its weight and its fits allow."""
+        if not self.hypotheses:
+            return BankVerdict()
+        likelihoods = []
+        for h in self.hypotheses:
+            h.tracker.on_odometry(t, *odom)
+            x, y, theta = h.pose
+            gap = wrap_scalar(bearing - (math.atan2(position[1] - y, position[0] - x) - theta))
+            likelihoods.append(math.exp(-0.5 * (gap / sigma) ** 2))
+        floor = self.config.min_fit ** self.config.independent_points
+        weights = np.array([h.weight for h in self.hypotheses]) * np.maximum(likelihoods, floor)
+        for h, w in zip(self.hypotheses, weights / weights.sum(), strict=True):
+            h.weight = float(w)
+        self._prune()
+        return self._verdict(least_fit)
+
     def _moved(self, odom: NDArray[np.float64]) -> bool:
         if self._last_update is None:
             return True

@@ -39,14 +39,14 @@ class OdometryMotionConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     alpha1: float = Field(0.05, ge=0, description="rotation noise from rotation, rad per √rad")
-    alpha2: float = Field(0.01, ge=0, description="rotation noise from translation, rad per √m")
+    alpha2: float = Field(0.05, ge=0, description="rotation noise from translation, rad per √m")
     alpha3: float = Field(0.05, ge=0, description="translation noise from translation, m per √m")
-    alpha4: float = Field(0.01, ge=0, description="translation noise from rotation, m per √rad")
+    alpha4: float = Field(0.02, ge=0, description="translation noise from rotation, m per √rad")
     floor_xy: float = Field(
-        0.003, ge=0, description="isotropic position noise, m per √(m + rad) travelled"
+        0.05, ge=0, description="isotropic position noise, m per √(m + rad) travelled"
     )
     floor_theta: float = Field(
-        0.003, ge=0, description="heading noise, rad per √(m + rad) travelled"
+        0.02, ge=0, description="heading noise, rad per √(m + rad) travelled"
     )
     heading_min_translation: float = Field(
         0.01,

@@ -43,11 +43,11 @@ _DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e
 
 
 class ScanOdometryConfig(BaseModel):
-    """Scan-to-scan matching of one laser, fused into the wheel odometry (off by default)."""
+    """Scan-to-scan matching of one laser, fused into the wheel odometry (on by default)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    enabled: bool = False
+    enabled: bool = True
     sensor: str | None = Field(
         None, description="the sensor whose scans are matched; None: the first laser configured "
         "(none: no scan matching)")

@@ -39,17 +39,21 @@ class HoughConfig(BaseModel):
     refine_max_band: float | None = Field(
         None, gt=0.0, description="m; None: one ρ cell (noisier sensors need more)"
     )
-    piece_gap: float = Field(1.0, gt=0.0, description="m; a larger gap splits a line into pieces")
+    piece_gap: float = Field(0.5, gt=0.0, description="m; a larger gap splits a line into pieces")
     min_piece_points: int = Field(5, ge=2)
-    min_line_length: float = Field(0.4, ge=0.0, description="m; shorter pieces are not lines")
+    min_line_length: float = Field(0.6, ge=0.0, description="m; shorter pieces are not lines")
     max_line_sigma: float = Field(0.05, gt=0.0, description="m; rougher fits are not lines")
     point_sigma_floor: float = Field(0.003, gt=0.0, description="m; floor on the fitted σ")
     # Sensors whose noise grows with range (a camera's triangulation: σ = σ₀ + k·d²) weight each
     # point by 1/σ²; 0 means uniform noise (a laser), and no weighting.
     range_sigma_growth: float = Field(0.0, ge=0.0, description="k in σ = σ₀ + k·d², 1/m")
     range_sigma_base: float = Field(0.01, gt=0.0, description="σ₀ in σ = σ₀ + k·d², m")
-    line_theta_floor_deg: float = Field(0.01, ge=0.0, description="model error of a line's θ")
-    line_rho_floor: float = Field(0.0005, ge=0.0, description="m; model error of a line's ρ")
+    # A map's segment is no exact wall: built from scans it is off by its mapper's error, and a
+    # wall drawn as one line is rarely straight to a centimetre. A simulated map is exact: 0.
+    line_theta_floor_deg: float = Field(
+        0.5, ge=0.0, description="σ of a line's θ that no fit removes: the map's model error")
+    line_rho_floor: float = Field(
+        0.02, ge=0.0, description="m; σ of a line's ρ that no fit removes: the map's model error")
     # --- map references (§3.4)
     max_range: float | None = Field(None, gt=0.0, description="m; None: from the points")
     reference_kinds: tuple[str, ...] = ("wall",)
@@ -57,14 +61,16 @@ class HoughConfig(BaseModel):
     # --- correspondence and displacement (§3.5)
     guess_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior when no covariance given")
     guess_sigma_theta_deg: float = Field(5.0, gt=0.0)
-    gate_probability: float = Field(0.999, gt=0.5, lt=1.0)
+    gate_probability: float = Field(
+        0.9999, gt=0.5, lt=1.0, description="χ²(2) probability that a line's right reference "
+        "falls inside its match gate")
     extent_margin: float = Field(0.1, ge=0.0, description="m of slack on segment extents")
     min_extent_coverage: float = Field(
         0.6, gt=0.0, le=1.0, description="fraction of an observed piece that must lie on segments"
     )
     match_iterations: int = Field(2, ge=1, description="re-match at the corrected pose")
     decisive_d2_margin: float | None = Field(
-        None, gt=0.0, description="a line whose best reference beats the others' Mahalanobis d² "
+        6.0, gt=0.0, description="a line whose best reference beats the others' Mahalanobis d² "
         "by this much takes it (real maps model one wall by near-duplicate pieces), and lines "
         "still ambiguous are left out of a full fix without flagging it; None: any second "
         "candidate in the gate is ambiguous and flags the fix")

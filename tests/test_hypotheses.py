@@ -7,7 +7,9 @@ kidnaps recovered through it, against the simulator's truth.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from hypothesis import strategies as st
 
 from fusion import LocalizerConfig
 from fusion.config import FilterConfig
+from fusion.events import Scan
 from fusion.hypotheses import HypothesisBank, HypothesisConfig
 from fusion.localizer import Localizer
 from fusion.tracker import PoseTracker
@@ -101,10 +104,11 @@ def test_the_best_of_poses_that_all_fit_poorly_is_not_taken(office) -> None:
     assert np.allclose(verdicts[1].pose[:2], SPOTS[0][:2] + [0.4, 0.0], atol=0.01)
 
 
-def following() -> LocalizerConfig:
+def following(**ambiguity: object) -> LocalizerConfig:
+    """The office's configuration: hypotheses followed (the default), ``ambiguity`` changes."""
     base = LocalizerConfig.from_yaml(OFFICE)
-    return base.model_copy(update={"ambiguity": base.ambiguity.model_copy(
-        update={"hypotheses": HypothesisConfig()})})
+    assert base.ambiguity.hypotheses == HypothesisConfig()
+    return base.model_copy(update={"ambiguity": base.ambiguity.model_copy(update=ambiguity)})
 
 
 def test_look_alike_rooms_decided_by_where_the_robot_was() -> None:
@@ -113,12 +117,10 @@ def test_look_alike_rooms_decided_by_where_the_robot_was() -> None:
     (the displacement prior in the hypotheses' first weights), and is taken. Without the prior
     the two stay tied."""
     recovered, confident_wrong, loc, _ = kidnap_trial(seed=4, config=following())
-    assert recovered is not None and recovered <= 2.5 and confident_wrong == 0
+    assert recovered is not None and recovered <= 3.5 and confident_wrong == 0
     assert any(tr.reason.startswith("relocalized: global match hypothesis of weight")
                for tr in loc.manager.transitions)
-    config = following()
-    config = config.model_copy(update={"ambiguity": config.ambiguity.model_copy(
-        update={"kidnap_prior_sigma": None})})
+    config = following(kidnap_prior_sigma=None)
     later, confident_wrong, _, _ = kidnap_trial(seed=4, config=config)
     assert (later is None or later > 5.0) and confident_wrong == 0
 
@@ -137,15 +139,28 @@ def test_newcomers_join_as_likely_as_the_leader_ranked_by_score_and_prior(office
 
 
 def test_tracking_given_up_too_early_is_taken_back_without_a_jump() -> None:
-    """Giving up at the first unusable scan (max_scans_without_fix 1) costs nothing when the
-    belief was right: it is the first followed hypothesis, keeps fitting, and is taken back
-    within a few scans; the kidnap later is still recovered, by a global match's pose."""
-    config = following()
-    config = config.model_copy(update={"ambiguity": config.ambiguity.model_copy(
-        update={"max_scans_without_fix": 1})})
+    """Giving up at the first unusable scan (max_scans_without_fix 1; the laser blinded for
+    one scan) costs nothing when the belief was right: it is the first followed hypothesis,
+    keeps fitting, and is taken back within a few scans; the kidnap later is still recovered,
+    by a global match's pose."""
+    config = following(max_scans_without_fix=1, hold_fit_ratio=None)
     run, t_kidnap = kidnap_run(0)
+    blind = 0.5 * t_kidnap
+
+    class Blinded:  # the run, with no return at all on the first scan after ``blind``
+        def __getattr__(self, name: str) -> object:
+            return getattr(run, name)
+
+        def events(self) -> Iterator[object]:
+            blinded = False
+            for ev in run.events():
+                if isinstance(ev, Scan) and ev.t >= blind and not blinded:
+                    blinded = True
+                    ev = dataclasses.replace(ev, ranges=np.full_like(ev.ranges, np.inf))
+                yield ev
+
     loc = Localizer(run.map, config, run.odom_truth[0])
-    times, errors, _ = drive(run, loc)
+    times, errors, _ = drive(Blinded(), loc)
     before = times < t_kidnap
     early = [tr.reason for tr in loc.manager.transitions if tr.t < t_kidnap]
     assert any(r.startswith("relocalized: tracked hypothesis") for r in early), early

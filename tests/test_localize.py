@@ -21,7 +21,7 @@ from fusion.sim import (
 from houghloc import HoughConfig, SegmentMap, localize_scan, observe_lines
 from houghloc.geometry import ranges_to_points, wrap_angle
 from houghloc.matching import associate, reassociate
-from tests.conftest import MAPS
+from tests.conftest import MAPS, REPO
 
 LASER = LaserConfig(sigma=0.01)
 FIELD_HOUGH = LocalizerConfig.from_yaml(MAPS.parent / "robocup-laser.yaml").sensors["laser"].hough
@@ -53,13 +53,16 @@ def perturbed(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 @pytest.mark.parametrize(("map_name", "radius"), [("robocup", 0.25), ("office", 0.2)])
 def test_accuracy_ten_times_finer_than_the_grid_in_crowds(request, map_name, radius) -> None:
     m = request.getfixturevalue(map_name)
+    # the scenario's description of its world: exact walls, a RoboCup field's short goal sides
+    scenario = LocalizerConfig.from_yaml(REPO / "configs" / f"{map_name}-laser.yaml")
+    hough = scenario.sensors["laser"].hough
     rng = np.random.default_rng(2024)
     pos_err, head_err, flagged, fractions = [], [], [], []
     for _ in range(200):
         pose, scan = crowded_scan(m, rng, radius)
         fractions.append(obstacle_fraction(scan.labels))
         points = ranges_to_points(scan.ranges, scan.angles, LASER.max_range)
-        c = localize_scan(points, m, perturbed(pose, rng))
+        c = localize_scan(points, m, perturbed(pose, rng), hough)
         assert np.isfinite(c.pose).all() and np.isfinite(c.cov).all()
         pos_err.append(math.hypot(*(c.pose[:2] - pose[:2])))
         head_err.append(abs(math.degrees(wrap_angle(c.pose[2] - pose[2]))))

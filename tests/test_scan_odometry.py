@@ -22,6 +22,9 @@ from fusion.tracker import PoseTracker
 from houghloc.geometry import compose, ranges_to_points, ray_segment_distances
 
 CONFIG = ScanOdometryConfig(enabled=True)
+# wheels as good as the simulated robot's (configs/office-laser.yaml): σ ≈ 2 cm over 0.2 m
+WHEELS = OdometryMotionConfig(alpha1=0.05, alpha2=0.01, alpha3=0.05, alpha4=0.01,
+                              floor_xy=0.003, floor_theta=0.003)
 ANGLES = np.radians(np.arange(-90.0, 90.5, 0.5))
 
 # A 10 × 6 m room with a cabinet and a pillar: enough structure to pin all three dof.
@@ -66,7 +69,7 @@ def wheels_then_scan(walls: np.ndarray, start: np.ndarray, motion: np.ndarray,
                      wheel_motion: np.ndarray, config: ScanOdometryConfig = CONFIG):
     """A ScanOdometry fed a scan at ``start``, the wheels' ``wheel_motion``, and a scan after
     the true ``motion``: its proposed corrected increment (or None)."""
-    scan_odometry = ScanOdometry(config, OdometryMotionModel(OdometryMotionConfig()))
+    scan_odometry = ScanOdometry(config, OdometryMotionModel(WHEELS))
     scan_odometry.on_wheels(0.0, 0.0, 0.0)
     assert scan_odometry.match(0.0, scan_points(walls, start)) is None  # the first: reference
     scan_odometry.on_wheels(*wheel_motion)
@@ -127,13 +130,13 @@ def test_range_noise_on_a_corridors_walls_says_nothing_along_it(seed: int) -> No
 
 
 def test_scan_odometry_matches_the_first_laser_unless_told() -> None:
-    """With no sensor named, scan matching uses the configuration's laser; a camera-only
-    configuration has none to match, and runs on its wheels alone."""
-    assert LocalizerConfig.from_dict({"scan_odometry": {"enabled": True}}
-                                     ).scan_odometry_sensor == "laser"
-    camera_only = {"sensors": {"camera": {"kind": "camera"}}, "scan_odometry": {"enabled": True}}
+    """With no sensor named, scan matching (on by default) uses the configuration's laser; a
+    camera-only configuration has none to match, and runs on its wheels alone."""
+    assert LocalizerConfig.from_dict({}).scan_odometry_sensor == "laser"
+    camera_only = {"sensors": {"camera": {"kind": "camera"}}}
     assert LocalizerConfig.from_dict(camera_only).scan_odometry_sensor is None
-    assert LocalizerConfig.from_dict({}).scan_odometry_sensor is None  # off by default
+    off = {"scan_odometry": {"enabled": False}}
+    assert LocalizerConfig.from_dict(off).scan_odometry_sensor is None
 
 
 def test_a_match_far_from_the_wheels_is_not_believed() -> None:
@@ -193,12 +196,16 @@ def slipping_run():
 
 
 def dead_reckoned(run, scan_odometry: bool):
-    """The localizer with no usable fix (every fix needs more lines than a scan has): what
-    remains is its odometry, with or without the scans' correction."""
-    config = LocalizerConfig.from_dict({
-        "sensors": {"laser": {"min_fix_lines": 1000}},
-        "ambiguity": {"max_scans_without_fix": 100000},
-        "scan_odometry": {"enabled": scan_odometry},
+    """The localizer with no usable fix (every fix needs more lines than a scan has, and no
+    fit rule overrides that): what remains is its odometry, with or without the scans'
+    correction."""
+    office = LocalizerConfig.from_yaml("configs/office-laser.yaml")
+    laser = office.sensors["laser"].model_copy(update={"min_fix_lines": 1000})
+    config = office.model_copy(update={
+        "sensors": {"laser": laser},
+        "ambiguity": office.ambiguity.model_copy(update={
+            "max_scans_without_fix": 100000, "min_fit_gain": None, "local_search_xy": None}),
+        "scan_odometry": office.scan_odometry.model_copy(update={"enabled": scan_odometry}),
     })
     return localize_simulated(run, config)
 
