@@ -338,6 +338,7 @@ def test_ten_hours_simulated_under_a_gigabyte_and_run_in_one_and_a_half_hours_me
             peaks[hours, recording] = cli_peak_rss_kib(
                 "run", "--map", str(log / "map.yaml"), "--log", str(log / "log.carmen"),
                 "--gt", str(log / "gt.tum"), "--initial-pose", *map(str, start),
+                "--config", str(CONFIGS / "robocup-laser.yaml"),  # the simulated robot's
                 *([] if recording else ["--no-rerun"]), "--no-progress", "--out", str(out))
             shutil.rmtree(out)  # a 10-hour recording is 3 GB
     for recording in (False, True):
