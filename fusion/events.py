@@ -19,13 +19,18 @@ turns), is no robot's: readers skip such a record, the Localizer drops such a re
 @dataclass(frozen=True, slots=True)
 class Odometry:
     """A wheel-odometry pose (x, y, θ) in the odometry frame at time ``t`` (``line``: the
-    record's line number in its file, for messages)."""
+    record's line number in its file, for messages).
+
+    ``unmeasured``: seconds just before ``t`` whose motion the increment from the previous
+    reading does not contain (a hole in a log the reader could not bridge); the robot may have
+    moved anywhere within its speed limits then, and the filter's prediction says so."""
 
     t: float
     x: float
     y: float
     theta: float
     line: int | None = None
+    unmeasured: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -115,7 +115,7 @@ class Localizer:
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
                                         make_tracker=self._tracker_at)
         self.logger.log_map(map)
-        self._held_odometry: tuple[float, float, float, float] | None = None
+        self._held_odometry: tuple[float, float, float, float, float] | None = None
         self._start_reason = "initial pose given"
         if initial_pose is None:
             self.manager.start_lost(0.0, "no initial pose: global localization")
@@ -163,10 +163,12 @@ class Localizer:
     def cov(self) -> NDArray[np.float64]:
         return self.tracker.cov
 
-    def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
+    def on_odometry(self, t: float, x: float, y: float, theta: float,
+                    unmeasured: float = 0.0) -> None:
         """Predict with the odometry increment since the last reading (its frame is arbitrary),
         after removing the configured scale errors (``filter.motion.*_scale``) and, with scan
-        odometry, in the frame the scan matches corrected.
+        odometry, in the frame the scan matches corrected. ``unmeasured``: seconds before t whose
+        motion the increment misses (:class:`fusion.events.Odometry`).
 
         Time (:mod:`fusion.io.timing`): a reading more than ``MAX_TIME_STEP`` after the previous
         one is held until the next confirms it (at or after it) or shows it a stray stamp
@@ -180,7 +182,7 @@ class Localizer:
                 log.warning("odometry at t = %s cannot be a pose (%s, %s, %s): dropped, the chain "
                             "goes on from the last good reading", t, x, y, theta)
             return
-        reading = (t, x, y, theta)
+        reading = (t, x, y, theta, unmeasured if math.isfinite(unmeasured) else 0.0)
         held, self._held_odometry = self._held_odometry, None
         if held is not None:
             if t >= held[0]:
@@ -196,12 +198,13 @@ class Localizer:
             return
         self._use_odometry(*reading)
 
-    def _use_odometry(self, t: float, x: float, y: float, theta: float) -> None:
+    def _use_odometry(self, t: float, x: float, y: float, theta: float,
+                      unmeasured: float = 0.0) -> None:
         if self._calibrate is not None:
             x, y, theta = self._calibrate(x, y, theta)
         if self.scan_odometry is not None and math.isfinite(x + y + theta):
-            x, y, theta = self.scan_odometry.on_wheels(x, y, theta)
-        self.tracker.on_odometry(t, x, y, theta)
+            x, y, theta = self.scan_odometry.on_wheels(x, y, theta, unmeasured)
+        self.tracker.on_odometry(t, x, y, theta, unmeasured)
         self.logger.log_odometry(t, (x, y, theta))
 
     def on_scan(self, t: float, ranges: ArrayLike, angles: ArrayLike,

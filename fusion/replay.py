@@ -146,7 +146,8 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             n_events += 1
             t0 = time.perf_counter()
             if isinstance(event, Odometry):
-                localizer.on_odometry(event.t, event.x, event.y, event.theta)
+                localizer.on_odometry(event.t, event.x, event.y, event.theta,
+                                      event.unmeasured)
                 seconds["odometry"] += time.perf_counter() - t0
                 if pending:
                     flush()

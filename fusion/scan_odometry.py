@@ -40,6 +40,9 @@ from houghloc.matching import gate_threshold
 # information finite, and still lets the wheels outweigh a match when the robot stands.
 _STILL_NOISE = 1e-6 * np.eye(3)
 _DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e3 per axis
+# Point-to-line ICP converges on walls from a heading within about half of this: when the wheels
+# missed a turn, the match is started from headings this far apart over the turn it could be.
+_HEADING_START_SPACING = math.radians(20.0)
 
 
 class ScanOdometryConfig(BaseModel):
@@ -196,14 +199,18 @@ class ScanOdometry:
         self._anchor: NDArray[np.float64] | None = None  # corrected pose there
         self._points: NDArray[np.float64] | None = None  # the reference scan
         self._time = -math.inf  # and its time
+        self._unmeasured = 0.0  # seconds of motion the wheels missed since the reference scan
         floors = (config.floor_xy**2, config.floor_xy**2, math.radians(config.floor_theta_deg)**2)
         self._floor = np.diag(floors)
         self._robust_limit = (math.inf if config.robust_quantile is None
                               else gate_threshold(config.robust_quantile, 3))
 
-    def on_wheels(self, x: float, y: float, theta: float) -> tuple[float, float, float]:
-        """The corrected odometry pose for a wheel reading."""
+    def on_wheels(self, x: float, y: float, theta: float,
+                  unmeasured: float = 0.0) -> tuple[float, float, float]:
+        """The corrected odometry pose for a wheel reading (``unmeasured``: seconds before it
+        whose motion the wheels missed, see :class:`fusion.events.Odometry`)."""
         self._wheels = np.array((x, y, theta), dtype=float)
+        self._unmeasured += unmeasured
         if self._anchor is None:
             self._anchor_wheels, self._anchor = self._wheels, self._wheels.copy()
         return tuple(self._corrected_wheels().tolist())
@@ -218,8 +225,7 @@ class ScanOdometry:
             self.skip(t, points)
             return None
         wheel_step = increment(self._anchor_wheels, self._wheels)
-        fused = self._fuse(wheel_step, point_to_line_icp(self._points, points, wheel_step,
-                                                         self.config))
+        fused = self._fuse(wheel_step, self._align(points, wheel_step))
         if fused is None:
             self.unmatched += 1
             self.skip(t, points)
@@ -232,14 +238,31 @@ class ScanOdometry:
         """The filter took the corrected pose: the scan becomes the reference for the next."""
         self._points, self._anchor_wheels, self._anchor = (correction.points, correction.wheels,
                                                            correction.pose)
-        self._time = correction.t
+        self._time, self._unmeasured = correction.t, 0.0
 
     def skip(self, t: float, points: NDArray[np.float64]) -> None:
         """The scan was not corrected: it becomes the reference at its uncorrected pose (an older
         reference would drift out of view)."""
         self._anchor = self._corrected_wheels()
         self._points, self._anchor_wheels, self._time = points, self._wheels, t
+        self._unmeasured = 0.0
 
+    def _align(self, points: NDArray[np.float64],
+               wheel_step: NDArray[np.float64]) -> IcpResult | None:
+        """The ICP of the scan onto the reference, started at the wheels' increment; when the
+        wheels missed some motion, started from every heading the robot could have turned to
+        then as well, and the best-overlapping alignment kept (the nearer turn on a tie)."""
+        assert self._points is not None
+        reach = self.motion.config.max_turn_rate * self._unmeasured
+        count = min(int(reach / _HEADING_START_SPACING), int(math.pi / _HEADING_START_SPACING))
+        best: IcpResult | None = None
+        for k in sorted(range(-count, count + 1), key=abs):
+            start = wheel_step.copy()
+            start[2] += k * _HEADING_START_SPACING
+            icp = point_to_line_icp(self._points, points, start, self.config)
+            if icp is not None and (best is None or icp.overlap > best.overlap):
+                best = icp
+        return best
     def _corrected_wheels(self) -> NDArray[np.float64]:
         """The newest wheel reading in the corrected frame: chained onto the reference scan."""
         return compose(self._anchor, increment(self._anchor_wheels, self._wheels))
@@ -256,10 +279,16 @@ class ScanOdometry:
         matched = icp.delta.copy()
         matched[2] = wheel_step[2] + wrap_scalar(matched[2] - wheel_step[2])
         gap = matched - wheel_step
-        if (math.hypot(gap[0], gap[1]) > c.max_correction_xy
-                or abs(gap[2]) > math.radians(c.max_correction_theta_deg)):
+        # motion the wheels missed widens what they can be corrected by, to where the robot
+        # could have gone meanwhile
+        limits = self.motion.config
+        if (math.hypot(gap[0], gap[1]) > c.max_correction_xy + limits.max_speed * self._unmeasured
+                or abs(gap[2]) > (math.radians(c.max_correction_theta_deg)
+                                  + limits.max_turn_rate * self._unmeasured)):
             return None
         wheel_cov = self.motion.noise(wheel_step) + _STILL_NOISE
+        if self._unmeasured > 0.0:
+            wheel_cov = wheel_cov + self.motion.jump_noise(self._unmeasured)
         scan_cov = icp.cov * c.noise_scale + self._floor
         if c.robust_quantile is not None:
             # the two disagree beyond their joint noise: the wheels slipped or misreport (a good

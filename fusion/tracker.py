@@ -185,11 +185,13 @@ class PoseTracker:
             return node.odom.copy()
         return self._split(node, self._nodes[j + 1], t)[0]
 
-    def on_odometry(self, t: float, x: float, y: float, theta: float) -> None:
+    def on_odometry(self, t: float, x: float, y: float, theta: float,
+                    unmeasured: float = 0.0) -> None:
         """Predict with the increment since the previous odometry reading (the first one only
         anchors the odometry frame). Backwards timestamps are ignored and counted; a repeated
         reading is a no-op; an implausible increment is replaced by zero motion with the jump
-        covariance and counted.
+        covariance and counted. ``unmeasured`` seconds of motion the increment misses add the
+        jump covariance of that interval: the robot moved somewhere within its limits then.
         """
         if not all(map(math.isfinite, (t, x, y, theta))):
             self._invalid(f"non-finite odometry at t={t}: ({x}, {y}, {theta})")
@@ -203,7 +205,7 @@ class PoseTracker:
         if t < lo.t:
             self.counts.odometry_backwards += 1
             return
-        if t == lo.t and (odom == lo.odom).all():
+        if t == lo.t and (odom == lo.odom).all() and unmeasured <= 0.0:
             return
         dt = t - lo.t
         total = increment(lo.odom, odom)
@@ -215,9 +217,11 @@ class PoseTracker:
                 step, q = _ZERO3, self.motion.jump_noise(dt)
             else:
                 step, q = total, self.motion.noise(total)
+            if unmeasured > 0.0:
+                q = q + self.motion.jump_noise(unmeasured)
             self._nodes.append(_Node(t, odom, None, None, step, q, jump))
         else:
-            self._absorb_provisional(lo_index, t, odom, dt, jump)
+            self._absorb_provisional(lo_index, t, odom, dt, jump, unmeasured)
         self._trim()
 
     def correct_odometry(self, t: float, pose: ArrayLike, since: float | None = None,
@@ -261,7 +265,8 @@ class PoseTracker:
         return True
 
     def _absorb_provisional(
-        self, lo_index: int, t: float, odom: NDArray[np.float64], dt: float, jump: bool
+        self, lo_index: int, t: float, odom: NDArray[np.float64], dt: float, jump: bool,
+        unmeasured: float = 0.0
     ) -> None:
         """Insert the odometry reading among the provisional nodes: those up to t get their
         odometry interpolated (zero motion across a jump), those after it stay provisional at
@@ -283,6 +288,8 @@ class PoseTracker:
             else:
                 n.step = increment(prev.odom, n.odom)
                 n.step_q = self.motion.noise(n.step)
+            if n is reading and unmeasured > 0.0:
+                n.step_q = n.step_q + self.motion.jump_noise(unmeasured)
             self._nodes.append(n)
             prev = n
         self._tail = len(after)

@@ -359,6 +359,23 @@ def test_odometry_jump_is_flagged_and_replaced_by_zero_motion():
     assert tracker.counts.odometry_jumps == 2
 
 
+def test_unmeasured_motion_spreads_the_estimate_over_the_robots_reach():
+    """A reading that says its increment misses 3 s of motion (a hole in a log) keeps the
+    estimate where the wheels say, spread by the jump covariance of those 3 s; the same reading
+    without it is the plain, confident prediction."""
+    told, untold = PoseTracker([0.0, 0.0, 0.0], P0), PoseTracker([0.0, 0.0, 0.0], P0)
+    t, odom = drive(told, (0.5, 0.0), seconds=1.0)
+    drive(untold, (0.5, 0.0), seconds=1.0)
+    step = compose(odom, [0.05, 0.0, 0.0])
+    told.on_odometry(t + 3.0, *step, unmeasured=3.0)
+    untold.on_odometry(t + 3.0, *step)
+    np.testing.assert_allclose(told.pose, untold.pose)
+    np.testing.assert_allclose(told.cov, untold.cov + told.motion.jump_noise(3.0), atol=1e-12)
+    assert math.sqrt(told.cov[2, 2]) > math.pi  # any heading
+    told.on_odometry(t + 3.0, *step, unmeasured=0.0)  # a repeat without news is a no-op
+    assert told.counts.predictions == untold.counts.predictions
+
+
 def test_readings_with_equal_stamps_keep_their_motion():
     """Coarse or repeated stamps (logs printed with %g, 0.1 s clocks): the motion of readings
     that share a stamp is composed, not taken for a jump."""

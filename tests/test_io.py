@@ -378,6 +378,31 @@ def test_corrected_log_rebuilds_raw_odometry_without_the_reference(tmp_path):
     assert log.stats.backwards_timestamps == 0  # anchors (odd timestamps) are not events
 
 
+def test_motion_lost_before_a_laser_record_is_reported_unmeasured(tmp_path):
+    """The ODOM line before a laser record normally carries its time. When it is 3 s older, the
+    motion from it went into the re-anchoring jump (seattle at 100.87 s: an 80° turn): the
+    reader says so with a reading at the record's time, and the chain goes on from the anchor."""
+    raw = [np.array([2.0, 1.0, 0.3])]
+    for _ in range(5):
+        raw.append(compose(raw[-1], [0.1, 0.0, 0.02]))
+    reference = np.array([7.0, -3.0, 1.9])  # the corrected pose after the lost turn
+    after = compose(reference, [0.1, 0.0, 0.05])
+    lines = [odom_line(*raw[0], 10.0), odom_line(*raw[1], 10.2),
+             flaser_line([1.0, 2.0], raw[1], raw[1], 10.2), odom_line(*raw[1], 0.0),
+             odom_line(*raw[2], 10.4),
+             flaser_line([1.0, 2.0], reference, reference, 13.4), odom_line(*reference, 0.0),
+             odom_line(*after, 13.6)]
+    log = read_carmen(write_log(tmp_path / "hole.log", lines))
+    assert log.corrected
+    odometry, scans = split(list(log))
+    assert [o.t for o in odometry] == [10.0, 10.2, 10.4, 13.4, 13.6]
+    assert [o.unmeasured for o in odometry] == pytest.approx([0, 0, 0, 3.0, 0])
+    got = np.array([(o.x, o.y, o.theta) for o in odometry])
+    np.testing.assert_allclose(got[3], got[2])  # nothing measured over the hole
+    np.testing.assert_allclose(relative(got[3], got[4]), [0.1, 0.0, 0.05], atol=1e-6)
+    assert [s.t for s in scans] == [10.2, 13.4]
+
+
 def test_raw_odometry_flag_overrides_detection(tmp_path):
     lines, raw = corrected_log(np.random.default_rng(2))
     log = read_carmen(write_log(tmp_path / "corr.log", lines), raw_odometry=True)

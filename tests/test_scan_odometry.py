@@ -96,6 +96,23 @@ def test_without_the_robust_weighting_wheels_that_misreport_still_pull() -> None
     assert 0.03 < pose[0] + 0.2 < 0.1
 
 
+def test_a_turn_the_wheels_missed_is_found_by_the_scans() -> None:
+    """The wheels report nothing over 3 s in which the robot turned 80° on the spot (a hole in
+    a log, see fusion.events.Odometry.unmeasured): told so, the match searches every heading
+    the robot could have reached and finds the turn; not told, the wheels' stillness is
+    believed and the match 80° from it is refused."""
+    start, motion = np.array([3.0, 2.5, 0.3]), np.array([0.03, 0.0, math.radians(-80.0)])
+    scan_odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    scan_odometry.on_wheels(0.0, 0.0, 0.0)
+    scan_odometry.match(0.0, scan_points(ROOM, start))
+    scan_odometry.on_wheels(0.0, 0.0, 0.0, unmeasured=3.0)
+    correction = scan_odometry.match(3.0, scan_points(ROOM, compose(start, motion)))
+    assert correction is not None
+    assert np.hypot(*(correction.pose[:2] - motion[:2])) < 0.01
+    assert abs(math.degrees(correction.pose[2] - motion[2])) < 0.2
+    assert wheels_then_scan(ROOM, start, motion, np.zeros(3)) is None
+
+
 def test_along_a_featureless_corridor_the_wheels_keep_their_say() -> None:
     """The scans fix the heading and the position across the corridor, not along it: there
     the fused increment stays near the wheels' 0.2 m although the robot moved 0.3 m (their

@@ -24,7 +24,10 @@ repeating the laser record's pose or by ``ipc_timestamp == 0`` (in the real logs
 usually 0 but sometimes uninitialised memory such as 1e-42, 1.13 or −0.96). The reader rebuilds one
 continuous raw odometry trajectory from the increments, ``prev⁻¹ ⊕ next`` without an anchor in
 between and ``anchor⁻¹ ⊕ next`` with one, so the correction (the jump from ``prev`` to the anchor)
-never reaches the odometry. The raw chain starts at the log's first ``ODOM`` pose.
+never reaches the odometry. The raw chain starts at the log's first ``ODOM`` pose. The ``ODOM``
+line before a laser record normally carries the record's time; when it is older, the motion from
+it to the record went into the re-anchoring jump and is lost: an ``Odometry`` at the record's time
+repeats the raw pose with that interval as ``unmeasured``.
 
 **Bad records** (truncated, non-numeric, NaN/inf pose or time, NaN/negative range, wrong count) are
 skipped; each adds a message with its line number to ``ReadStats`` (``ReadStats.warn``) and the
@@ -272,6 +275,7 @@ class _CarmenParser:
         self._anchor: NDArray[np.float64] | None = None  # re-anchoring pose since then, if any
         self._laser_pose: NDArray[np.float64] | None = None  # pose of a laser record not yet
         # followed by an ODOM line (the next ODOM may be its re-anchoring line)
+        self._raw_t = -math.inf  # time of the last emitted raw pose
 
     def events(self, f: TextIO) -> Iterator[Event]:
         path = self.source.path
@@ -363,6 +367,7 @@ class _CarmenParser:
             base = self._anchor if self._anchor is not None else self._prev_logged
             raw = compose(self._raw, relative(base, pose))
         self._raw, self._prev_logged, self._anchor = raw, pose, None
+        self._raw_t = t
         return [Odometry(t, *raw.tolist(), line=number)]
 
     def _flaser(self, tokens: list[str], number: int) -> list[Event]:
@@ -418,6 +423,13 @@ class _CarmenParser:
     ) -> list[Event]:
         reference = tuple(pose.tolist()) if self.corrected else None
         self._laser_pose = pose
+        hole: list[Event] = []
+        if self.corrected and self._raw is not None and t > self._raw_t:
+            # The ODOM line before a laser record normally carries its time; when the last one
+            # is older, the motion from it to the laser record ends in the re-anchoring jump
+            # and is lost with it: say so at the scan, so the filter knows before it matches.
+            hole = [Odometry(t, *self._raw.tolist(), line=number, unmeasured=t - self._raw_t)]
+            self._raw_t = t
         scan = Scan(
             t,
             ranges,
@@ -428,7 +440,7 @@ class _CarmenParser:
         )
         if self.laser_odometry:
             return [Odometry(t, *odom.tolist()), scan]
-        return [scan]
+        return [*hole, scan]
 
     def _truepos(self, tokens: list[str]) -> list[Event]:
         _need(tokens, 9, "TRUEPOS")
