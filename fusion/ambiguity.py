@@ -129,6 +129,9 @@ class AmbiguityConfig(BaseModel):
     # changes.
     kidnap_prior_sigma: float | None = Field(
         2.0, gt=0.0, description="m; scale of a plausible kidnap (None: never use the prior)")
+    kidnap_probability: float = Field(
+        0.01, gt=0.0, le=1.0, description="how plausible a pose far beyond the kidnap scale is "
+        "next to one where the odometry says the robot is (the displacement prior's floor)")
     kidnap_prior_odds: float = Field(
         10.0, gt=1.0, description="the nearest tied pose is taken when the prior makes it this "
         "many times as likely as every rival: exp((d₂² − d₁²) / 2σ²)")
@@ -559,15 +562,16 @@ class AmbiguityManager:
 
     def _displacement_prior(self, pose: NDArray) -> float:
         """How plausible a pose is from where tracking last was, carried by odometry:
-        N(d; 0, ``kidnap_prior_sigma``²) in the distance d, over a floor of 1 % for a robot
-        carried anywhere; 1 without a belief (global start)."""
+        N(d; 0, ``kidnap_prior_sigma``²) in the distance d, over a floor of
+        ``kidnap_probability`` for a robot carried anywhere; 1 without a belief (global
+        start)."""
         sigma = self.config.kidnap_prior_sigma
         if sigma is None or self._prior is None or not self._views:
             return 1.0
         belief, _, odom = self._prior
         moved = compose(belief, relative(odom, self._views[-1].odom))
         d = math.hypot(pose[0] - moved[0], pose[1] - moved[1])
-        return max(math.exp(-0.5 * (d / sigma) ** 2), 0.01)
+        return max(math.exp(-0.5 * (d / sigma) ** 2), self.config.kidnap_probability)
 
     def _follow_bank(self, t: float, odom: NDArray, points: NDArray,
                      hough: HoughConfig) -> Decision:

@@ -488,3 +488,22 @@ def _cell(value: Any, precision: int) -> str:
     if isinstance(value, float | np.floating):
         return f"{float(value):.{precision}g}"
     return str(value)
+
+
+def window_means(t: ArrayLike, values: ArrayLike, seconds: float) -> NDArray[np.float64]:
+    """The mean of ``values`` over each window [t_i, t_i + seconds) that ends inside the data,
+    one per start t_i (sorted times); the whole data's mean when it spans less than that.
+
+    With prefix sums S: mean_i = (S[j_i] − S[i]) / (j_i − i), j_i the first index at or past
+    t_i + seconds."""
+    t = np.asarray(t, float)
+    v = np.asarray(values, float)
+    if len(t) == 0:
+        return np.empty(0)
+    ends = np.searchsorted(t, t + seconds, side="left")
+    full = t + seconds <= t[-1]
+    if not full.any():
+        return np.array([v.mean()])
+    starts = np.flatnonzero(full)
+    sums = np.concatenate(([0.0], np.cumsum(v)))
+    return (sums[ends[starts]] - sums[starts]) / (ends[starts] - starts)

@@ -7,15 +7,19 @@ tell them apart is time: a right pose keeps fitting the scans as the robot moves
 falls behind within a few scans. So each proposed pose gets its own :class:`PoseTracker` with the
 Hough fixes as measurements, and a weight updated by Bayes' rule with every scan::
 
-    w_h ← w_h · L_h / Σ_k w_k · L_k,      L_h = max(f_h, f_min)^n
+    w_h ← w_h · L_h / Σ_k w_k · L_k,      L_h = max(max(f_h, f_min)^n, ε · max_k L_k)
 
 ``f_h`` the fraction of the scan's points on the map's walls at the hypothesis's pose after its
 fix (a likelihood field with a box kernel: cheap, and a person or a cupboard in front of the
 laser lowers every hypothesis alike), ``f_min`` the likelihood of a scan that lands on no wall
 at all (glass, crowds), which keeps one bad scan from wiping out a right pose, and ``n`` the
 number of independent observations a scan is worth (its points on one wall err together, so a
-scan of 360 points is worth far fewer). Weights are updated only once the robot has moved
-since the last update (as AMCL does): scans from one place repeat one observation. Hypotheses that
+scan of 360 points is worth far fewer), and ε the probability that a scan taken at the right pose
+fits the map no better than at a wrong one (furniture moved, a room the map lacks): without it
+one scan could weigh 10¹⁵ against a right pose that fits 0.15 where a wrong one fits 0.5 (Intel
+in a map of another run), and no scan should weigh more than 1/ε. Weights are updated only once
+the robot has moved since the last update (as AMCL does): scans from one place repeat one
+observation. Hypotheses that
 meet are merged (their weights add), those whose weight falls below a probability are dropped,
 and one whose weight reaches the acceptance probability is the pose, provided its scans fit
 about as well as tracking's did: when no proposed pose is right, the best of them still gets
@@ -76,6 +80,10 @@ class HypothesisConfig(BaseModel):
         "pose is right, the best of them still gets most of the weight")
     independent_points: float = Field(
         30.0, gt=0.0, description="independent observations a scan is worth: L = f^n")
+    unexplained_scan_probability: float | None = Field(
+        0.05, gt=0.0, lt=1.0, description="how often a scan taken at the right pose fits the "
+        "map no better than at a wrong one (furniture moved, a room the map lacks): no scan "
+        "weighs more than 1/this against a pose (None: unbounded)")
     update_distance: float = Field(
         0.1, ge=0.0, description="m travelled (or update_angle_deg turned) between weight "
         "updates: a robot standing still adds no evidence")
@@ -179,11 +187,9 @@ class HypothesisBank:
             return BankVerdict()
         self._last_update = np.asarray(odom, float).copy()
         fits = self._fit(np.array([h.pose for h in self.hypotheses]), points)
-        log_l = self.config.independent_points * np.log(np.maximum(fits, self.config.min_fit))
-        weights = np.array([h.weight for h in self.hypotheses]) * np.exp(log_l - log_l.max())
-        weights /= weights.sum()
-        for h, w, f in zip(self.hypotheses, weights, fits, strict=True):
-            h.weight = float(w)
+        self._weigh(self.config.independent_points * np.log(np.maximum(fits,
+                                                                        self.config.min_fit)))
+        for h, f in zip(self.hypotheses, fits, strict=True):
             h.fits.append(float(f))
             h.updates += 1
         self._merge()
@@ -195,24 +201,34 @@ class HypothesisBank:
         """A landmark known to be at ``position`` seen at ``bearing`` (σ ``sigma``) at time
         ``t``: Bayes' rule with each hypothesis's predicted bearing β̂_h,
 
-            L_h = max(exp(−½ ((bearing − β̂_h)/σ)²), f_min^n)
+            L_h = max(exp(−½ ((bearing − β̂_h)/σ)²), ε · max_k L_k)
 
-        (floored like a scan's likelihood: one misrecognised landmark does not rule a pose
+        (bounded like a scan's likelihood: one misrecognised landmark does not rule a pose
         out); then the leader is taken when its weight and its fits allow."""
         if not self.hypotheses:
             return BankVerdict()
-        likelihoods = []
+        log_l = []
         for h in self.hypotheses:
             h.tracker.on_odometry(t, *odom)
             x, y, theta = h.pose
             gap = wrap_scalar(bearing - (math.atan2(position[1] - y, position[0] - x) - theta))
-            likelihoods.append(math.exp(-0.5 * (gap / sigma) ** 2))
-        floor = self.config.min_fit ** self.config.independent_points
-        weights = np.array([h.weight for h in self.hypotheses]) * np.maximum(likelihoods, floor)
-        for h, w in zip(self.hypotheses, weights / weights.sum(), strict=True):
-            h.weight = float(w)
+            log_l.append(-0.5 * (gap / sigma) ** 2)
+        self._weigh(np.array(log_l))
         self._prune()
         return self._verdict(least_fit)
+
+    def _weigh(self, log_likelihoods: NDArray[np.float64]) -> None:
+        """Bayes' rule, w_h ← w_h · L_h / Σ_k w_k L_k, with each log L_h raised to at least
+        log(ε · max_k L_k), ε the ``unexplained_scan_probability``: an observation the map does
+        not explain at the right pose happens that often, so none can rule a pose out."""
+        log_l = np.asarray(log_likelihoods, float)
+        best = float(log_l.max())
+        if self.config.unexplained_scan_probability is not None:
+            log_l = np.maximum(log_l, best + math.log(self.config.unexplained_scan_probability))
+        weights = np.array([h.weight for h in self.hypotheses]) * np.exp(log_l - best)
+        weights /= weights.sum()
+        for h, w in zip(self.hypotheses, weights, strict=True):
+            h.weight = float(w)
 
     def _moved(self, odom: NDArray[np.float64]) -> bool:
         if self._last_update is None:

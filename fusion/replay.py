@@ -41,6 +41,8 @@ class ReplayResult:
     interrupted: bool = False
     scans: int = 0
     span: tuple[float | None, float | None] = (None, None)  # first and last scan time
+    scan_cpu: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+    """Each recorded scan's CPU time (s), in the order of ``t``: the cost of its fusion."""
 
     @property
     def trajectory(self) -> Trajectory:
@@ -113,6 +115,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     """
     rows = _Rows(1 + 3 + 6)  # t, pose, covariance's upper triangle
     statuses: list[str] = []  # the same few strings, shared: one reference a scan
+    scan_cpu: list[float] = []
     truth = _Rows(4)  # t, x, y, θ
     seconds = {"odometry": 0.0, "scans": 0.0}
     writer = TumWriter(trajectory_path).open() if trajectory_path is not None else None
@@ -161,6 +164,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
                 continue
             if pending:  # a scan's pose is recorded by the next scan at the latest: odometry
                 flush(all_of_them=True)  # stamped behind the scans never covers them
+            cpu = time.process_time()
             if isinstance(event, Scan):
                 est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
                                         event.max_range)
@@ -169,6 +173,8 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             else:
                 continue
             seconds["scans"] += time.perf_counter() - t0
+            if keep:
+                scan_cpu.append(time.process_time() - cpu)
             stamp = getattr(event, "stamp", None)  # a record's own (out-of-order) timestamp
             t_est = est.t if stamp is None else stamp
             n_scans += 1
@@ -194,7 +200,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     return ReplayResult(
         table[:, 0], table[:, 1:4], table[:, 4:], statuses,
         Trajectory(truth_table[:, 0], truth_table[:, 1:]) if len(truth_table) else None,
-        seconds, n_events, interrupted, n_scans, (first_t, last_t))
+        seconds, n_events, interrupted, n_scans, (first_t, last_t), np.array(scan_cpu))
 
 
 def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) -> dict[str, Any]:
@@ -258,6 +264,13 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
             k: round(1e3 * v / n, 4) for k, v in result.seconds.items() if n and k != "total"},
         "scans_per_second": _finite(result.scans_per_second),
     }
+    so = localizer.scan_odometry
+    if so is not None:
+        doc["scan_odometry"] = {"matched": so.matched, "unmatched": so.unmatched}
+        if so.scale is not None:
+            doc["scan_odometry"]["wheel_scale"] = {
+                "estimate": round(so.scale.value, 6),
+                "sigma": round(math.sqrt(so.scale.variance), 6), "updates": so.scale.updates}
     if read_stats is not None:
         doc["log"] = {"records": read_stats.records, "skipped": read_stats.skipped,
                       "backwards_timestamps": read_stats.backwards_timestamps,

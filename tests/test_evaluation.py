@@ -21,6 +21,7 @@ from fusion.evaluation import (
     chi2_band,
     nees,
     summary_table,
+    window_means,
 )
 from fusion.io.relations import Relations
 from houghloc.geometry import compose, inverse, relative
@@ -169,3 +170,20 @@ def test_summary_table_formats_rows():
     assert lines[0].split() == ["log", "rmse_m", "scans"]
     assert "0.1235" in lines[2] and lines[3].split() == ["aces", "1.5"]
     assert summary_table([[1, 2.0]], headers=["a", "b"]).splitlines()[2].split() == ["1", "2"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(gaps=st.lists(st.floats(0.01, 3.0), min_size=1, max_size=60),
+       values=st.lists(st.floats(0.0, 1.0), min_size=60, max_size=60))
+def test_window_means_equal_the_brute_force_means(gaps, values):
+    """Each full window's mean, by prefix sums, equals the mean of the values whose time lies
+    in [t_i, t_i + 10 s); a log shorter than a window has one, its whole mean."""
+    t = np.cumsum([0.0, *gaps])
+    v = np.array(values[:len(t)])
+    got = window_means(t, v, 10.0)
+    full = [i for i in range(len(t)) if t[i] + 10.0 <= t[-1]]
+    if not full:
+        assert got == pytest.approx([v.mean()])
+    else:
+        want = [v[(t >= t[i]) & (t < t[i] + 10.0)].mean() for i in full]
+        assert got == pytest.approx(want)

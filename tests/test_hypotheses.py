@@ -50,16 +50,18 @@ def weigh(b: HypothesisBank, odom=(0.5, 0.0, 0.0), least_fit: float | None = Non
 @settings(max_examples=50, deadline=None)
 @given(st.lists(st.tuples(st.floats(0.05, 1.0), st.floats(0.6, 1.0)), min_size=2, max_size=6))
 def test_weights_follow_bayes_rule(office, priors_and_fits) -> None:
-    """w ← w · max(f, f_min)^n, normalised: the posterior of each pose given the scan (fits
-    within 0.6-1, so that none falls below the pruning floor)."""
+    """w ← w · max(max(f, f_min)^n, ε · max L), normalised: the posterior of each pose given
+    the scan, no scan weighing more than 1/ε against one (fits within 0.6-1: none falls below
+    the pruning floor)."""
     priors = [p for p, _ in priors_and_fits]
     fits = np.array([f for _, f in priors_and_fits])
     config = HypothesisConfig(prune_probability=1e-12, accept_probability=0.999999)
     b = bank(office, lambda poses: fits[np.rint((poses[:, 0] - 2.0) / 4.0).astype(int)], config)
     b.seed(0.0, np.zeros(3), SPOTS[: len(priors)], [COV] * len(priors), priors)
     weigh(b)
-    expected = np.array(priors) / sum(priors) * np.maximum(fits, config.min_fit) ** \
-        config.independent_points
+    likelihood = np.maximum(fits, config.min_fit) ** config.independent_points
+    likelihood = np.maximum(likelihood, config.unexplained_scan_probability * likelihood.max())
+    expected = np.array(priors) / sum(priors) * likelihood
     expected /= expected.sum()
     got = [h.weight for h in b.hypotheses]
     assert len(got) == len(priors)
@@ -75,7 +77,7 @@ def test_a_robot_standing_still_adds_no_evidence(office) -> None:
     weigh(b, odom=(0.05, 0.0, 0.0))
     assert [h.weight for h in b.hypotheses] == [0.5, 0.5]
     weigh(b, odom=(0.15, 0.0, 0.0))
-    assert b.hypotheses[0].weight > 0.99
+    assert b.hypotheses[0].weight == pytest.approx(1.0 / 1.05)  # 1/ε = 20 to 1
 
 
 def test_poses_that_meet_merge_and_weak_ones_are_dropped(office) -> None:
@@ -83,9 +85,12 @@ def test_poses_that_meet_merge_and_weak_ones_are_dropped(office) -> None:
     near = SPOTS[0] + [0.01, 0.0, 0.0]
     b.seed(0.0, np.zeros(3), [SPOTS[0], near, SPOTS[1]], [COV] * 3, [1.0, 1.0, 2.0])
     assert len(b) == 2 and sorted(h.weight for h in b.hypotheses) == [0.5, 0.5]
-    b = bank(office, lambda poses: [1.0, 0.5, 0.9][: len(poses)])
+    b = bank(office, lambda poses: [1.0, 0.5, 0.95][: len(poses)])
     b.seed(0.0, np.zeros(3), SPOTS[:3], [COV] * 3, [1.0, 1.0, 1.0])
-    weigh(b)  # 0.5³⁰ ≈ 1e-9 of the best: dropped
+    weigh(b, odom=(0.2, 0.0, 0.0))  # 0.5³⁰ ≈ 1e-9 of the best, bounded at ε = 0.05 a scan
+    assert len(b) == 3
+    weigh(b, odom=(0.4, 0.0, 0.0))
+    weigh(b, odom=(0.6, 0.0, 0.0))  # 0.05³ of the best: below the pruning floor, dropped
     assert len(b) == 2 and sum(h.weight for h in b.hypotheses) == pytest.approx(1.0)
 
 
@@ -102,6 +107,29 @@ def test_the_best_of_poses_that_all_fit_poorly_is_not_taken(office) -> None:
     assert verdicts[0].pose is None  # one weighed scan is not enough (min_scans 2)
     assert verdicts[1].pose is not None  # the first, carried 0.4 m by the odometry
     assert np.allclose(verdicts[1].pose[:2], SPOTS[0][:2] + [0.4, 0.0], atol=0.01)
+
+
+def test_no_scan_and_no_landmark_weighs_more_than_one_over_epsilon(office) -> None:
+    """A right pose in a room the map lacks fits 0.15 where a wrong one fits 0.5 (Intel in the
+    map of another run): f^30 would weigh 10¹⁵ against it in one scan; bounded, it is 1/ε = 20.
+    A landmark seen 90° off the bearing one pose predicts (misrecognised) weighs 1/ε too; with
+    the bound off, the scan's full ratio returns."""
+    b = bank(office, lambda poses: [0.15, 0.5][: len(poses)])
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    weigh(b)
+    right, wrong = (h.weight for h in sorted(b.hypotheses, key=lambda h: h.pose[0]))
+    assert wrong / right == pytest.approx(20.0)
+    b = bank(office, lambda poses: [1.0] * len(poses))
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    b.weigh_bearing(0.0, np.zeros(3), (SPOTS[0][0], SPOTS[0][1] + 5.0), math.pi / 2, 0.05, None)
+    heavy = max(h.weight for h in b.hypotheses) / min(h.weight for h in b.hypotheses)
+    assert heavy == pytest.approx(20.0)
+    unbounded = HypothesisConfig(unexplained_scan_probability=None, prune_probability=1e-30)
+    b = bank(office, lambda poses: [0.15, 0.5][: len(poses)], unbounded)
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    weigh(b)
+    right, wrong = (h.weight for h in sorted(b.hypotheses, key=lambda h: h.pose[0]))
+    assert wrong / right == pytest.approx((0.5 / 0.15) ** 30, rel=1e-6)
 
 
 def following(**ambiguity: object) -> LocalizerConfig:

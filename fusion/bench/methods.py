@@ -48,6 +48,7 @@ class Localized:
     trajectory: Trajectory
     cpu_seconds: float
     statuses: dict[str, int] | None = None
+    scan_cpu: NDArray[np.float64] | None = None  # each scan's CPU seconds, when measured
 
 
 def localize(method: Method, piece: Piece, config: LocalizerConfig) -> Localized:
@@ -80,7 +81,7 @@ def _houghloc(piece: Piece, config: LocalizerConfig, _method: Method) -> Localiz
     cpu = time.process_time()
     result = replay(piece.events, localizer, progress=False)
     cpu = time.process_time() - cpu
-    return Localized(result.trajectory, cpu, dict(localizer.stats.statuses))
+    return Localized(result.trajectory, cpu, dict(localizer.stats.statuses), result.scan_cpu)
 
 
 class _DeadReckoning:

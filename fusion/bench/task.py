@@ -19,7 +19,14 @@ import numpy as np
 from fusion.bench.data import Piece, RunData, covered
 from fusion.bench.methods import Localized, MissingPeer, localize, supports
 from fusion.bench.spec import Method, Protocol, RunSpec, apply_settings, settings_label
-from fusion.evaluation import ATE, ATEResult, LostFraction, RelationError, Trajectory
+from fusion.evaluation import (
+    ATE,
+    ATEResult,
+    LostFraction,
+    RelationError,
+    Trajectory,
+    window_means,
+)
 
 LOST_POSITION = 0.3
 """m: a pose farther than this from the reference is lost (as is one off by LOST_HEADING_DEG)."""
@@ -27,7 +34,8 @@ LOST_HEADING_DEG = 5.0
 
 COLUMNS = ("task_id", "run", "method", "protocol", "settings", "scans", "ate_rmse_m",
            "ate_max_m", "heading_rmse_deg", "lost_frac", "covered_frac", "lost_covered_frac",
-           "rel_trans_m", "rel_rot_rad", "global_time_s", "cpu_ms_per_scan", "status", "error")
+           "rel_trans_m", "rel_rot_rad", "global_time_s", "cpu_ms_per_scan", "cpu_ms_worst_10s",
+           "status", "error")
 """The columns of ``results.csv``, in order."""
 
 
@@ -121,12 +129,30 @@ def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list
         "covered_frac": float(np.mean(cover)) if len(cover) else math.nan,
         "lost_covered_frac": float(np.mean(lost[cover])) if cover.any() else math.nan,
         "cpu_ms_per_scan": 1e3 * sum(d.cpu_seconds for d in done) / max(scans, 1),
+        "cpu_ms_worst_10s": 1e3 * _worst_window(done),
     }
     if data.spec.relations is not None:
         out.update(_relations(trajectory, data))
     if global_start:
         out["global_time_s"] = time_to_right(ate, trajectory, lost)
     return out
+
+
+WORST_WINDOW = 10.0
+"""s of log over which the mean CPU time per scan is taken for the worst-window column."""
+
+
+def _worst_window(done: list[Localized]) -> float:
+    """The largest mean CPU time per scan over any WORST_WINDOW seconds of log (each piece on
+    its own; NaN when the method does not time its scans)."""
+    worst = math.nan
+    for d in done:
+        if d.scan_cpu is None or len(d.scan_cpu) != len(d.trajectory):
+            return math.nan
+        if len(d.scan_cpu):
+            value = window_means(d.trajectory.t, d.scan_cpu, WORST_WINDOW).max()
+            worst = value if math.isnan(worst) else max(worst, value)
+    return worst
 
 
 def _covered(ate: ATEResult, data: RunData, pieces: list[Piece]) -> np.ndarray:
