@@ -57,10 +57,11 @@ def test_bench_real_overrides_settings_of_the_datasets_configs() -> None:
     config = overridden_config(base, ["scan_odometry.enabled=false",
                                       "ambiguity.local_search_xy=0.75"])
     assert not config.scan_odometry.enabled and config.ambiguity.local_search_xy == 0.75
-    assert config.filter.motion.rotation_scale == 0.95  # the rest is the file's
+    assert config.sensors["laser"].max_range == 20.0  # the rest is the file's
+    assert config.ambiguity.max_scans_without_fix == 25  # and the defaults
     with pytest.raises(ValueError, match="expected KEY=VALUE"):
         overridden_config(base, ["scan_odometry.enabled"])
     with pytest.raises(ValueError, match="local_serch_xy"):  # a misspelt key is named
         overridden_config(base, ["ambiguity.local_serch_xy=0.75"])
     with pytest.raises(ValueError, match="not a group"):
-        overridden_config(base, ["ambiguity.local_search_xy.inner=1"])
+        overridden_config(base, ["sensors.laser.max_range.inner=1"])
