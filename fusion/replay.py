@@ -42,7 +42,8 @@ class ReplayResult:
     scans: int = 0
     span: tuple[float | None, float | None] = (None, None)  # first and last scan time
     scan_cpu: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
-    """Each recorded scan's CPU time (s), in the order of ``t``: the cost of its fusion."""
+    """Each recorded scan's CPU time (s), in the order of ``t``, when ``replay`` was asked to
+    time them: the cost of its fusion."""
 
     @property
     def trajectory(self) -> Trajectory:
@@ -97,12 +98,14 @@ class _Rows:
 
 def replay(events: Iterable[Event], localizer: Localizer, *,
            trajectory_path: str | Path | None = None, progress: bool | None = None,
-           description: str = "replay", keep: bool = True) -> ReplayResult:
+           description: str = "replay", keep: bool = True,
+           time_scans: bool = False) -> ReplayResult:
     """Feed every event to the localizer in arrival order; collect the estimate at each scan.
 
     ``progress``: a tqdm bar in scans (None: only when writing to a terminal). ``keep=False``
     keeps no per-scan results in memory (they are in the trajectory file): memory then does not
-    grow with the log, and only counts and timings are returned.
+    grow with the log, and only counts and timings are returned. ``time_scans``: keep each
+    scan's CPU time too (``ReplayResult.scan_cpu``, for a benchmark's worst window).
 
     A scan taken after the newest odometry reading (its reading for the same instant is next in
     the stream, or the clocks differ by a rounding) is used at once, but its pose is recorded
@@ -173,7 +176,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             else:
                 continue
             seconds["scans"] += time.perf_counter() - t0
-            if keep:
+            if time_scans:
                 scan_cpu.append(time.process_time() - cpu)
             stamp = getattr(event, "stamp", None)  # a record's own (out-of-order) timestamp
             t_est = est.t if stamp is None else stamp

@@ -79,7 +79,7 @@ def _houghloc(piece: Piece, config: LocalizerConfig, _method: Method) -> Localiz
 
     localizer = Localizer(piece.map_source.segment_map, config, piece.start)
     cpu = time.process_time()
-    result = replay(piece.events, localizer, progress=False)
+    result = replay(piece.events, localizer, progress=False, time_scans=True)
     cpu = time.process_time() - cpu
     return Localized(result.trajectory, cpu, dict(localizer.stats.statuses), result.scan_cpu)
 
