@@ -46,7 +46,7 @@ from houghloc import (
 )
 from houghloc.displacement import UNOBSERVED_VARIANCE
 from houghloc.geometry import compose, relative, transform_points, wrap_angle, wrap_scalar
-from houghloc.global_match import Neighbourhood, to_world, wall_distance
+from houghloc.global_match import Neighbourhood, wall_distance
 from houghloc.localize import clean_points
 from houghloc.matching import gate_threshold
 
@@ -444,8 +444,7 @@ class AmbiguityManager:
         """:meth:`fit_fraction` at each of ``poses`` (P×3) at once."""
         gm = self.config.global_match
         walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
-        x, y = to_world(poses, points[:, 0], points[:, 1])  # P×N
-        return (walls.lookup(x, y) <= gm.inlier_distance).mean(axis=1)
+        return (walls.at(poses, points[:, 0], points[:, 1]) <= gm.inlier_distance).mean(axis=1)
 
     def fit_fraction(self, pose: NDArray, points: NDArray,
                      kinds: tuple[str, ...] = ("wall",)) -> float:

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.geometry import inverse_3x3
+from houghloc.jit import njit
 from houghloc.matching import Matches
 
 UNOBSERVED_VARIANCE = 1.0e6  # m² (or rad²): finite, so no NaN downstream, and plainly "unknown"
@@ -67,47 +68,83 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         z = np.zeros((3, 0))
         return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
                             z, np.eye(3), 0.0, 0)
-    # Per match, with n = (cos β, sin β), W = C⁻¹ = [[w00, w01], [w01, w11]] and residual r:
-    # Jᵀ W J = [[w11 n nᵀ, w01 n], [w01 nᵀ, w00]],
-    # Jᵀ W r = [−n (w01 r₀ + w11 r₁), −(w00 r₀ + w01 r₁)]; one column sum gives all entries.
-    c = matches.cov
-    det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2
-    w00, w01, w11 = c[:, 1, 1] / det, -c[:, 0, 1] / det, c[:, 0, 0] / det
-    nx, ny = np.cos(beta), np.sin(beta)
-    r0, r1 = matches.residual[:, 0], matches.residual[:, 1]
-    wr = w01 * r0 + w11 * r1
-    wr0 = w00 * r0 + w01 * r1
-    terms = np.array((w11 * nx * nx, w11 * nx * ny, w11 * ny * ny, w01 * nx, w01 * ny, w00,
-                      nx * wr, ny * wr, wr0, r0 * wr0 + r1 * wr)).sum(axis=1)
+    terms = _normal_equations(matches.cov, matches.residual, np.cos(beta), np.sin(beta))
     info = terms[_INFO_LAYOUT]
     b = -terms[6:9]
-
+    full, delta, cov, chi2_total = _full_rank_solution(terms, info, b, max_observable_sigma)
+    if full:  # the usual case: the whole pose is observed
+        return Displacement(delta, cov, info, 3, _FULL, _NONE, chi2_total,
+                            max(2 * len(matches) - 3, 0), matches, beta)
     # Observable translation directions: eigenvectors of the Schur complement
     # Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out), a symmetric 2×2 solved in closed form.
     l_xx, l_xy, l_yy, l_xt, l_yt, l_tt = terms[:6].tolist()
     a, bb, d = l_xx - l_xt * l_xt / l_tt, l_xy - l_xt * l_yt / l_tt, l_yy - l_yt * l_yt / l_tt
     half_gap = math.hypot(0.5 * (a - d), bb)
-    lam_small = 0.5 * (a + d) - half_gap
-    if lam_small > 1.0 / max_observable_sigma**2:  # the usual case: the whole pose is observed
-        cov = inverse_3x3(info)  # exactly symmetric, as Λ is
-        delta = cov @ b
-        u, v = _FULL, _NONE
-    else:
-        lam = (lam_small, 0.5 * (a + d) + half_gap)
-        phi = 0.5 * math.atan2(2.0 * bb, a - d)  # direction of the larger eigenvalue
-        dirs = ((-math.sin(phi), math.cos(phi)), (math.cos(phi), math.sin(phi)))
-        basis = [(0.0, 0.0, 1.0)]
-        blind = []
-        for lam_k, (vx, vy) in zip(lam, dirs, strict=True):
-            (basis if lam_k > 1.0 / max_observable_sigma**2 else blind).append((vx, vy, 0.0))
-        u = np.array(basis).T
-        v = np.array(blind).T
-        cov_u = np.linalg.inv(u.T @ info @ u)
-        delta = u @ (cov_u @ (u.T @ b))
-        cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
-        cov = 0.5 * (cov + cov.T)
+    lam = (0.5 * (a + d) - half_gap, 0.5 * (a + d) + half_gap)
+    phi = 0.5 * math.atan2(2.0 * bb, a - d)  # direction of the larger eigenvalue
+    dirs = ((-math.sin(phi), math.cos(phi)), (math.cos(phi), math.sin(phi)))
+    basis = [(0.0, 0.0, 1.0)]
+    blind = []
+    for lam_k, (vx, vy) in zip(lam, dirs, strict=True):
+        (basis if lam_k > 1.0 / max_observable_sigma**2 else blind).append((vx, vy, 0.0))
+    u = np.array(basis).T
+    v = np.array(blind).T
+    cov_u = np.linalg.inv(u.T @ info @ u)
+    delta = u @ (cov_u @ (u.T @ b))
+    cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
+    cov = 0.5 * (cov + cov.T)
     # post-fit χ² = min over Δ of Σ (r − JΔ)ᵀ W (r − JΔ) = rᵀWr − bᵀΔ (normal equations)
     chi2_total = max(float(terms[9] - b @ delta), 0.0)
     rank = u.shape[1]
     return Displacement(delta, cov, info, rank, u, v, chi2_total,
                         max(2 * len(matches) - rank, 0), matches, beta)
+
+
+@njit
+def _normal_equations(cov: NDArray, residual: NDArray, nx: NDArray, ny: NDArray) -> NDArray:
+    """The ten sums of the normal equations over all matches.
+
+    Per match, with n = (cos β, sin β), W = C⁻¹ = [[w00, w01], [w01, w11]] and residual r:
+    Jᵀ W J = [[w11 n nᵀ, w01 n], [w01 nᵀ, w00]],
+    Jᵀ W r = [−n (w01 r₀ + w11 r₁), −(w00 r₀ + w01 r₁)]; and rᵀ W r. Returns
+    (Λ_xx, Λ_xy, Λ_yy, Λ_xθ, Λ_yθ, Λ_θθ, −b_x, −b_y, −b_θ, rᵀWr).
+    """
+    terms = np.zeros(10)
+    for m in range(len(nx)):
+        det = cov[m, 0, 0] * cov[m, 1, 1] - cov[m, 0, 1] ** 2
+        w00, w01, w11 = cov[m, 1, 1] / det, -cov[m, 0, 1] / det, cov[m, 0, 0] / det
+        r0, r1 = residual[m, 0], residual[m, 1]
+        wr = w01 * r0 + w11 * r1
+        wr0 = w00 * r0 + w01 * r1
+        terms[0] += w11 * nx[m] * nx[m]
+        terms[1] += w11 * nx[m] * ny[m]
+        terms[2] += w11 * ny[m] * ny[m]
+        terms[3] += w01 * nx[m]
+        terms[4] += w01 * ny[m]
+        terms[5] += w00
+        terms[6] += nx[m] * wr
+        terms[7] += ny[m] * wr
+        terms[8] += wr0
+        terms[9] += r0 * wr0 + r1 * wr
+    return terms
+
+
+@njit
+def _full_rank_solution(terms: NDArray, info: NDArray, b: NDArray, max_observable_sigma: float
+                        ) -> tuple[bool, NDArray, NDArray, float]:
+    """Δ = Λ⁻¹ b, its covariance Λ⁻¹ and the post-fit χ², when the whole pose is observable:
+    the smaller eigenvalue of the Schur complement Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (the translation's
+    information with θ marginalised out) exceeds 1/``max_observable_sigma``². ``False`` (and
+    nothing else meaningful) otherwise."""
+    l_xx, l_xy, l_yy, l_xt, l_yt, l_tt = terms[0], terms[1], terms[2], terms[3], terms[4], terms[5]
+    a, bb, d = l_xx - l_xt * l_xt / l_tt, l_xy - l_xt * l_yt / l_tt, l_yy - l_yt * l_yt / l_tt
+    lam_small = 0.5 * (a + d) - math.hypot(0.5 * (a - d), bb)
+    if not lam_small > 1.0 / max_observable_sigma**2:
+        return False, b, info, 0.0
+    cov = inverse_3x3(info)  # exactly symmetric, as Λ is
+    delta = np.zeros(3)
+    for i in range(3):
+        delta[i] = cov[i, 0] * b[0] + cov[i, 1] * b[1] + cov[i, 2] * b[2]
+    # post-fit χ² = min over Δ of Σ (r − JΔ)ᵀ W (r − JΔ) = rᵀWr − bᵀΔ (normal equations)
+    chi2 = terms[9] - (b[0] * delta[0] + b[1] * delta[1] + b[2] * delta[2])
+    return True, delta, cov, max(chi2, 0.0)

@@ -10,6 +10,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from houghloc.jit import njit
+
 TWO_PI = 2.0 * np.pi
 
 
@@ -97,6 +99,7 @@ def ranges_to_points(
     return np.column_stack((r * np.cos(a), r * np.sin(a)))
 
 
+@njit
 def inverse_3x3(m: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverse of a 3×3 matrix by its adjugate (cofactors over the determinant).
 
@@ -104,14 +107,18 @@ def inverse_3x3(m: NDArray[np.float64]) -> NDArray[np.float64]:
     ``np.linalg.inv`` costs its general LAPACK call. Raises ``LinAlgError`` when singular, as
     ``np.linalg.inv`` does.
     """
-    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    a, b, c = m[0, 0], m[0, 1], m[0, 2]
+    d, e, f = m[1, 0], m[1, 1], m[1, 2]
+    g, h, i = m[2, 0], m[2, 1], m[2, 2]
     co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
     det = a * co_a + b * co_b + c * co_c
     if det == 0.0 or not math.isfinite(det):
-        raise np.linalg.LinAlgError(f"singular or non-finite 3×3 matrix (determinant {det})")
-    return np.array(((co_a, c * h - b * i, b * f - c * e),
-                     (co_b, a * i - c * g, c * d - a * f),
-                     (co_c, b * g - a * h, a * e - b * d))) / det
+        raise np.linalg.LinAlgError("singular or non-finite 3×3 matrix")
+    out = np.empty((3, 3))
+    out[0, 0], out[0, 1], out[0, 2] = co_a / det, (c * h - b * i) / det, (b * f - c * e) / det
+    out[1, 0], out[1, 1], out[1, 2] = co_b / det, (a * i - c * g) / det, (c * d - a * f) / det
+    out[2, 0], out[2, 1], out[2, 2] = co_c / det, (b * g - a * h) / det, (a * e - b * d) / det
+    return out
 
 
 def ray_segment_distances(
@@ -124,25 +131,24 @@ def ray_segment_distances(
     ``t > 0``, ``0 ≤ u ≤ 1``. Rays parallel to a segment never hit it (a grazing ray sees
     the segment's end-on neighbour instead, as a real scanner would).
     """
-    if len(starts) == 0:
-        return np.full((len(dirs), 0), np.inf)
-    p0 = starts - np.asarray(origin, dtype=float)[:2]  # S×2
-    e = ends - starts
-    dx, dy = dirs[:, :1], dirs[:, 1:]
-    num_t = p0[:, 0] * e[:, 1] - p0[:, 1] * e[:, 0]  # S
-    # In-place arithmetic: the inner loop of the simulator and of the map's visibility (B×S).
-    inv = dx * e[:, 1]
-    inv -= dy * e[:, 0]
-    u = dy * p0[:, 0]
-    u -= dx * p0[:, 1]
-    # ±inf for parallel rays (and overflow for nearly parallel ones): u becomes ±inf or nan → a
-    # miss
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        np.divide(1.0, inv, out=inv)
-        t = num_t * inv
-        u *= inv
-    miss = u < 0.0
-    miss |= u > 1.0
-    miss |= ~(t > 1e-9)
-    t[miss] = np.inf
+    origin = np.asarray(origin, dtype=float)
+    return _ray_segment_kernel(origin[0], origin[1], np.asarray(dirs, dtype=float),
+                               np.asarray(starts, dtype=float), np.asarray(ends, dtype=float))
+
+
+@njit
+def _ray_segment_kernel(ox: float, oy: float, dirs: NDArray, starts: NDArray, ends: NDArray
+                        ) -> NDArray:
+    t = np.empty((len(dirs), len(starts)))
+    for j in range(len(starts)):
+        p0x, p0y = starts[j, 0] - ox, starts[j, 1] - oy
+        ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
+        num_t = p0x * ey - p0y * ex
+        for i in range(len(dirs)):
+            dx, dy = dirs[i, 0], dirs[i, 1]
+            # ±inf for parallel rays (and overflow for nearly parallel ones): u becomes ±inf
+            # or nan → a miss
+            inv = 1.0 / (dx * ey - dy * ex)
+            tij, u = num_t * inv, (dy * p0x - dx * p0y) * inv
+            t[i, j] = tij if (not (u < 0.0 or u > 1.0) and tij > 1e-9) else np.inf
     return t

@@ -58,6 +58,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from houghloc.config import HoughConfig
 from houghloc.displacement import Displacement, estimate_displacement
 from houghloc.geometry import TWO_PI, wrap_angle
+from houghloc.jit import njit
 from houghloc.localize import scan_reach
 from houghloc.matching import Matches, associate
 from houghloc.refine import Lines
@@ -240,31 +241,61 @@ class WallDistance:
     cell: float
 
     def lookup(self, x: NDArray, y: NDArray) -> NDArray[np.float32]:
-        """Distances at world points (any shape), O(1) each.
-
-        The grid's outermost ring holds +inf, so clipping the indices is the only bounds check.
-        """
-        h, w = self.distance.shape
-        ix = ((x - self.origin[0]) * (1.0 / self.cell)).astype(np.intp)  # ≥ 0 inside: truncation
-        iy = ((y - self.origin[1]) * (1.0 / self.cell)).astype(np.intp)  # is floor there
-        return self.distance.ravel()[np.clip(iy, 0, h - 1) * w + np.clip(ix, 0, w - 1)]
+        """Distances at world points (any shape), O(1) each: the value of the cell holding the
+        point (the grid's outermost ring holds +inf, so clipping the indices is the only bounds
+        check)."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        return self.at(_IDENTITY, x, y)[0]
 
     def lookup_smooth(self, x: NDArray, y: NDArray) -> NDArray[np.float32]:
         """Distances interpolated bilinearly between cell centres: continuous in the position,
         where :meth:`lookup` jumps by a cell (a point exactly on a wall may read one cell off)."""
-        h, w = self.distance.shape
-        fx = (x - self.origin[0]) * (1.0 / self.cell) - 0.5
-        fy = (y - self.origin[1]) * (1.0 / self.cell) - 0.5
-        x0 = np.clip(np.floor(fx).astype(np.intp), 0, w - 2)
-        y0 = np.clip(np.floor(fy).astype(np.intp), 0, h - 2)
-        ax, ay = np.clip(fx - x0, 0.0, 1.0), np.clip(fy - y0, 0.0, 1.0)
-        flat = self.distance.ravel()
-        i = y0 * w + x0
-        with np.errstate(invalid="ignore"):  # inf · 0 at the grid's rim: far from every wall
-            top = flat[i] * (1 - ax) + flat[i + 1] * ax
-            bottom = flat[i + w] * (1 - ax) + flat[i + w + 1] * ax
-            out = top * (1 - ay) + bottom * ay
-        return np.where(np.isnan(out), np.inf, out).astype(np.float32)
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        return self.at(_IDENTITY, x, y, smooth=True)[0]
+
+    def at(self, poses: NDArray, x: NDArray, y: NDArray, smooth: bool = False
+           ) -> NDArray[np.float32]:
+        """Distances at robot-frame points (``x``, ``y``, any shape S) placed in the world at each
+        of ``poses`` (P×3): P×S, the points' world coordinates never stored.
+
+        World point: (x₀ + x cos θ − y sin θ, y₀ + x sin θ + y cos θ). ``smooth``: the bilinear
+        value of :meth:`lookup_smooth`, else the cell's of :meth:`lookup`.
+        """
+        shape = np.shape(x)
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        out = _distances_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,
+                            poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
+                            np.ravel(x), np.ravel(y), smooth)
+        return out.reshape((len(poses),) + shape)
+
+
+_IDENTITY = np.zeros((1, 3))
+
+
+@njit
+def _distances_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: NDArray,
+                  cos_t: NDArray, sin_t: NDArray, x: NDArray, y: NDArray, smooth: bool
+                  ) -> NDArray[np.float32]:
+    h, w = grid.shape
+    out = np.empty((len(poses), len(x)), np.float32)
+    for p in range(len(poses)):
+        c, s, px, py = cos_t[p], sin_t[p], poses[p, 0], poses[p, 1]
+        for k in range(len(x)):
+            fx = (px + c * x[k] - s * y[k] - ox) * inv_cell
+            fy = (py + s * x[k] + c * y[k] - oy) * inv_cell
+            if not smooth:  # truncation is floor inside the grid; outside, the +inf ring
+                ix, iy = min(max(int(fx), 0), w - 1), min(max(int(fy), 0), h - 1)
+                out[p, k] = grid[iy, ix]
+                continue
+            fx, fy = fx - 0.5, fy - 0.5  # from cell centres
+            x0 = min(max(math.floor(fx), 0), w - 2)
+            y0 = min(max(math.floor(fy), 0), h - 2)
+            ax, ay = min(max(fx - x0, 0.0), 1.0), min(max(fy - y0, 0.0), 1.0)
+            top = grid[y0, x0] * (1 - ax) + grid[y0, x0 + 1] * ax
+            bottom = grid[y0 + 1, x0] * (1 - ax) + grid[y0 + 1, x0 + 1] * ax
+            d = top * (1 - ay) + bottom * ay
+            out[p, k] = np.inf if math.isnan(d) else d  # inf · 0 at the rim: far from walls
+    return out
 
 
 _CACHE: weakref.WeakKeyDictionary[SegmentMap, dict] = weakref.WeakKeyDictionary()
@@ -484,11 +515,9 @@ def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMa
         a point); otherwise the cell's value, less a cell (its quantisation is not evidence)."""
         out = np.empty(len(poses))
         for sl in _chunks(len(poses), len(sample)):
-            wx, wy = to_world(poses[sl], sample[:, 0], sample[:, 1])
-            if smooth:
-                d = walls.lookup_smooth(wx, wy)
-            else:
-                d = np.maximum(walls.lookup(wx, wy) - walls.cell, 0.0)
+            d = walls.at(poses[sl], sample[:, 0], sample[:, 1], smooth)
+            if not smooth:
+                d = np.maximum(d - walls.cell, 0.0)
             d = d / config.inlier_distance
             out[sl] = np.clip(1.0 - d * d, 0.0, None).mean(axis=1)
         return out
@@ -750,8 +779,7 @@ def cheap_scores(poses: NDArray, lines: Lines, walls: WallDistance,
     weight = lines.n / lines.n.sum()
     out = np.empty(len(poses))
     for sl in _chunks(len(poses), px.size):
-        wx, wy = to_world(poses[sl], px, py)  # H×K×S
-        on_wall = walls.lookup(wx, wy) <= config.inlier_distance
+        on_wall = walls.at(poses[sl], px, py) <= config.inlier_distance  # H×K×S
         explained = on_wall.mean(axis=2) >= config.min_line_coverage
         out[sl] = explained @ weight
     return out
@@ -781,8 +809,7 @@ def point_scores(poses: NDArray, points: NDArray, members: NDArray[np.bool_],
     inliers = np.empty(len(poses))
     explained = np.empty((len(poses), members.shape[1]), dtype=bool)
     for sl in _chunks(len(poses), len(points)):
-        wx, wy = to_world(poses[sl], points[:, 0], points[:, 1])  # H×N
-        on_wall = walls.lookup(wx, wy) <= config.inlier_distance
+        on_wall = walls.at(poses[sl], points[:, 0], points[:, 1]) <= config.inlier_distance
         if visible is not None:
             on_wall &= visible[sl]
         on_wall = on_wall.astype(np.float32)

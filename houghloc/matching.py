@@ -13,6 +13,7 @@ the 2×2 blocks J P Jᵀ and the Mahalanobis distances are written out elementwi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 
@@ -22,6 +23,7 @@ from scipy.stats import chi2
 
 from houghloc.config import HoughConfig
 from houghloc.geometry import TWO_PI
+from houghloc.jit import njit
 from houghloc.refine import Lines
 from houghloc.segment_map import References
 
@@ -56,13 +58,11 @@ class Matches:
 
 @dataclass(frozen=True)
 class PairTable:
-    """Every (line, reference) pair of one association: residuals, representation, and whether
-    the observed piece lies on the reference's segments."""
+    """Every (line, reference) pair of one association: residuals and representation."""
 
     d_theta: NDArray[np.float64]  # K×L, wrapped
     d_rho: NDArray[np.float64]  # K×L
     sign: NDArray[np.float64]  # K×L: +1, or −1 where the flipped representation (θ + π, −ρ) fits
-    on_segments: NDArray[np.bool_]  # K×L extent check (all True where it was not needed)
     cos_beta: NDArray[np.float64]  # L
     sin_beta: NDArray[np.float64]  # L
 
@@ -77,29 +77,15 @@ def associate(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
               config: HoughConfig) -> Matches:
     """Gate every (line, reference) pair, check extents, resolve one-to-one or flag ambiguity.
 
-    S = J P Jᵀ + C per pair, written out for 2×2 blocks: with J = [[0, 0, −1], [−nᵀ, 0]],
-    J P Jᵀ = [[P_θθ, nᵀP_tθ], [nᵀP_tθ, nᵀP_tt n]].
+    Each observed line has two representations, (θ, ρ) and (θ + π, −ρ) (which negates its
+    cov(θ, ρ)); the one whose normal points the reference's way (|Δθ| ≤ π/2) is compared.
     """
-    k, n_ref = len(lines), len(refs)
-    if k == 0 or n_ref == 0:
+    if len(lines) == 0 or len(refs) == 0:
         e = np.empty(0, np.intp)
         return Matches(e, e, np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0))
-    cb, sb = np.cos(refs.beta), np.sin(refs.beta)
-    p_rt = cb * pose_cov[0, 2] + sb * pose_cov[1, 2]  # L: cov(ρ, θ) from the pose
-    p_rr = cb * (cb * pose_cov[0, 0] + 2 * sb * pose_cov[0, 1]) + sb * sb * pose_cov[1, 1]
-    # Each observed line has two representations, (θ, ρ) and (θ + π, −ρ) (which negates its
-    # cov(θ, ρ)); the one whose normal points the reference's way (|Δθ| ≤ π/2) is compared.
-    d_theta = (lines.theta[:, None] - refs.theta + np.pi) % TWO_PI - np.pi  # K×L
-    flip = np.abs(d_theta) > 0.5 * np.pi
-    sign = 1.0 - 2.0 * flip
-    d_theta -= np.copysign(np.pi, d_theta) * flip
-    d_rho = sign * lines.rho[:, None] - refs.rho
-    gated = _gate(lines, d_theta, d_rho, sign, p_rt, p_rr, pose_cov, config)
-    on_segments = np.ones_like(flip)
-    if gated[0].any():
-        on_segments = _extents_overlap(lines, refs, cb, sb, pose, pose_cov, flip, config)
-    table = PairTable(d_theta, d_rho, sign, on_segments, cb, sb)
-    return _resolve(lines, gated[0] & on_segments, gated[1], table, config)
+    d_theta, d_rho, sign = _pairs(lines.theta, lines.rho, refs.theta, refs.rho)
+    table = PairTable(d_theta, d_rho, sign, np.cos(refs.beta), np.sin(refs.beta))
+    return _match(lines, refs, table, pose, pose_cov, config)
 
 
 def reassociate(matches: Matches, lines: Lines, refs: References, pose: NDArray,
@@ -114,108 +100,169 @@ def reassociate(matches: Matches, lines: Lines, refs: References, pose: NDArray,
     table = matches.pairs
     if table is None or len(lines) == 0:
         return matches
-    d_theta = table.d_theta + offset[2]
-    d_rho = table.d_rho + (table.cos_beta * offset[0] + table.sin_beta * offset[1])
     cb, sb = table.cos_beta, table.sin_beta
-    p_rt = cb * pose_cov[0, 2] + sb * pose_cov[1, 2]
-    p_rr = cb * (cb * pose_cov[0, 0] + 2 * sb * pose_cov[0, 1]) + sb * sb * pose_cov[1, 1]
-    gated, d2 = _gate(lines, d_theta, d_rho, table.sign, p_rt, p_rr, pose_cov, config)
-    on_segments = table.on_segments
-    if gated.any():
-        on_segments = _extents_overlap(lines, refs, cb, sb, pose, pose_cov, table.sign < 0,
-                                       config)
-    moved = PairTable(d_theta, d_rho, table.sign, on_segments, cb, sb)
-    return _resolve(lines, gated & on_segments, d2, moved, config)
+    moved = PairTable(table.d_theta + offset[2], table.d_rho + (cb * offset[0] + sb * offset[1]),
+                      table.sign, cb, sb)
+    return _match(lines, refs, moved, pose, pose_cov, config)
 
 
-def _gate(lines: Lines, d_theta: NDArray, d_rho: NDArray, sign: NDArray, p_rt: NDArray,
-          p_rr: NDArray, pose_cov: NDArray, config: HoughConfig) -> tuple[NDArray, NDArray]:
-    """χ²(2) gate on every pair: d² = rᵀ S⁻¹ r with S = J P Jᵀ + C written out (2×2)."""
-    s00 = pose_cov[2, 2] + lines.cov[:, 0, 0][:, None]
-    s01 = p_rt + sign * lines.cov[:, 0, 1][:, None]
-    s11 = p_rr + lines.cov[:, 1, 1][:, None]
-    d2 = (s11 * d_theta * d_theta - 2.0 * s01 * d_theta * d_rho + s00 * d_rho * d_rho) / (
-        s00 * s11 - s01 * s01)
-    return d2 <= gate_threshold(config.gate_probability), d2
-
-
-def _extents_overlap(lines: Lines, refs: References, cos_beta: NDArray, sin_beta: NDArray,
-                     pose: NDArray, pose_cov: NDArray, flip: NDArray[np.bool_],
-                     config: HoughConfig) -> NDArray[np.bool_]:
-    """K×L: does the observed piece, placed in the world at ``pose``, lie on the line's segments?
-
-    Along the reference direction t = (−sin β, cos β) a robot-frame coordinate s maps to
-    s + (x, y)·t (−s when the line is seen with the flipped normal). The fraction of the observed
-    piece covered by the segments (each widened by a slack that grows with the pose uncertainty
-    along t and with the heading uncertainty times the distance) must reach
-    ``min_extent_coverage``: a wall seen through a goal mouth or a door is not the wall beside
-    the opening.
-    """
-    tx, ty = -sin_beta, cos_beta
-    seg = refs.seg_ref
-    offset = (tx * pose[0] + ty * pose[1])[seg]  # S
-    var_along = (tx * (tx * pose_cov[0, 0] + 2 * ty * pose_cov[0, 1]) + ty * ty * pose_cov[1, 1])
-    reach_sq = np.maximum(np.abs(lines.s0), np.abs(lines.s1)) ** 2  # K
-    slack = config.extent_margin + 3.0 * np.sqrt(
-        np.maximum(var_along[seg], 0.0) + (reach_sq * max(pose_cov[2, 2], 0.0))[:, None])  # K×S
-    seg_lo = refs.seg_s0 - offset - slack  # the segments in robot coordinates
-    seg_hi = refs.seg_s1 - offset + slack
-    flip_s = flip[:, seg]
-    s0 = np.where(flip_s, -lines.s1[:, None], lines.s0[:, None])
-    s1 = np.where(flip_s, -lines.s0[:, None], lines.s1[:, None])
-    overlap = np.maximum(np.minimum(s1, seg_hi) - np.maximum(s0, seg_lo), 0.0)
-    covered = overlap @ _one_hot(seg, len(refs))
-    return covered >= config.min_extent_coverage * np.maximum(lines.s1 - lines.s0, 1e-6)[:, None]
-
-
-def _one_hot(index: NDArray[np.intp], n: int) -> NDArray[np.float64]:
-    """len(index)×n matrix with a one in each row's column ``index``: sums rows into groups."""
-    return (index[:, None] == np.arange(n)).astype(np.float64)
-
-
-def _resolve(lines: Lines, candidate: NDArray, d2: NDArray, table: PairTable,
-             config: HoughConfig) -> Matches:
-    reasons: list[str] = []
-    if config.nearest_neighbour_only:  # keep only each line's nearest candidate: no ambiguity
-        nearest = np.where(candidate, d2, np.inf).argmin(axis=1)
-        candidate = candidate & (np.arange(candidate.shape[1])[None, :] == nearest[:, None])
-    n_cand = candidate.sum(axis=1)
-    if config.decisive_d2_margin is not None and (n_cand >= 2).any():
-        # A line whose best candidate beats every other by a clear likelihood ratio (the d²
-        # already carry the pose's uncertainty) is not ambiguous: it keeps only that candidate.
-        d2c = np.where(candidate, d2, np.inf)
-        two = np.partition(d2c, 1, axis=1)[:, :2]
-        gap = np.where(n_cand >= 2, two[:, 1] - np.where(n_cand >= 2, two[:, 0], 0.0), 0.0)
-        clear = gap >= config.decisive_d2_margin
-        if clear.any():
-            best = d2c.argmin(axis=1)
-            candidate = candidate.copy()
-            candidate[clear] = False
-            candidate[np.flatnonzero(clear), best[clear]] = True
-            n_cand = candidate.sum(axis=1)
-    ambiguous = n_cand >= 2
-    for i in np.flatnonzero(ambiguous)[:3]:
-        reasons.append(f"line θ={np.degrees(lines.theta[i]):.1f}° ρ={lines.rho[i]:.2f} m fits "
-                       f"{int(n_cand[i])} map lines")
-    single = candidate & (n_cand == 1)[:, None]
-    li, rj = np.nonzero(single)
-    # Two lines claiming one reference: the same wall seen twice is fine (they agree with each
-    # other); otherwise neither can be trusted.
-    claims = np.bincount(rj, minlength=candidate.shape[1])
-    shared = claims[rj] >= 2
-    if shared.any():
-        for j in np.unique(rj[shared]):
-            idx = li[rj == j]
-            r = np.column_stack((table.d_theta[idx, j], table.d_rho[idx, j]))
-            spread = np.abs(r - r.mean(axis=0))
-            sig = np.sqrt(np.stack((lines.cov[idx, 0, 0], lines.cov[idx, 1, 1]), -1))
-            if np.any(spread > 3.0 * sig + np.array([config.theta_step / 4, config.rho_step / 4])):
-                ambiguous[idx] = True
-                reasons.append(f"{len(idx)} lines claim one map line")
-        keep = ~ambiguous[li]
-        li, rj = li[keep], rj[keep]
+def _match(lines: Lines, refs: References, table: PairTable, pose: NDArray, pose_cov: NDArray,
+           config: HoughConfig) -> Matches:
+    """Gate, extent check and resolution of one pair table (:func:`_match_kernel`), with the
+    reasons for what was left out."""
+    margin = -1.0 if config.decisive_d2_margin is None else config.decisive_d2_margin
+    li, rj, d2, n_cand, ambiguous, claims = _match_kernel(
+        lines.cov, lines.s0, lines.s1, table.d_theta, table.d_rho, table.sign, table.cos_beta,
+        table.sin_beta, refs.seg_ref, refs.seg_s0, refs.seg_s1,
+        np.ascontiguousarray(pose, dtype=float), np.ascontiguousarray(pose_cov, dtype=float),
+        gate_threshold(config.gate_probability), config.extent_margin,
+        config.min_extent_coverage, config.nearest_neighbour_only, margin, config.theta_step,
+        config.rho_step)
+    reasons = [f"line θ={np.degrees(lines.theta[i]):.1f}° ρ={lines.rho[i]:.2f} m fits "
+               f"{int(n_cand[i])} map lines" for i in np.flatnonzero(n_cand >= 2)[:3]]
+    reasons += [f"{int(c)} lines claim one map line" for c in claims]
     cov = lines.cov[li]
     cov[:, 0, 1] *= table.sign[li, rj]  # the flipped representation negates cov(θ, ρ)
     cov[:, 1, 0] = cov[:, 0, 1]
-    return Matches(li, rj, np.array((table.d_theta[li, rj], table.d_rho[li, rj])).T, cov,
-                   d2[li, rj], np.flatnonzero(ambiguous), tuple(reasons), table)
+    return Matches(li, rj, np.array((table.d_theta[li, rj], table.d_rho[li, rj])).T, cov, d2,
+                   np.flatnonzero(ambiguous), tuple(reasons), table)
+
+
+@njit
+def _pairs(l_theta: NDArray, l_rho: NDArray, r_theta: NDArray, r_rho: NDArray
+           ) -> tuple[NDArray, NDArray, NDArray]:
+    """K×L residuals Δθ (wrapped), Δρ of each line against each reference, in the line's
+    representation whose normal points the reference's way, and the sign of that choice."""
+    k, n_ref = len(l_theta), len(r_theta)
+    d_theta, d_rho, sign = np.empty((k, n_ref)), np.empty((k, n_ref)), np.empty((k, n_ref))
+    for i in range(k):
+        for j in range(n_ref):
+            dt = (l_theta[i] - r_theta[j] + np.pi) % TWO_PI - np.pi
+            sg = 1.0
+            if abs(dt) > 0.5 * np.pi:
+                sg = -1.0
+                dt -= math.copysign(np.pi, dt)
+            d_theta[i, j], sign[i, j], d_rho[i, j] = dt, sg, sg * l_rho[i] - r_rho[j]
+    return d_theta, d_rho, sign
+
+
+@njit
+def _match_kernel(l_cov: NDArray, l_s0: NDArray, l_s1: NDArray, d_theta: NDArray,
+                  d_rho: NDArray, sign: NDArray, cos_beta: NDArray, sin_beta: NDArray,
+                  seg_ref: NDArray, seg_s0: NDArray, seg_s1: NDArray, pose: NDArray,
+                  pose_cov: NDArray, gate: float, extent_margin: float, min_coverage: float,
+                  nearest_only: bool, decisive_margin: float, theta_step: float,
+                  rho_step: float) -> tuple:
+    """The association's three steps on a pair table.
+
+    1. χ²(2) gate: d² = rᵀ S⁻¹ r with S = J P Jᵀ + C, written out for 2×2 blocks: with
+       J = [[0, 0, −1], [−nᵀ, 0]], J P Jᵀ = [[P_θθ, nᵀP_tθ], [nᵀP_tθ, nᵀP_tt n]].
+    2. Extents, for gated pairs: does the observed piece, placed in the world at ``pose``, lie on
+       the line's segments? Along the reference direction t = (−sin β, cos β) a robot-frame
+       coordinate s maps to s + (x, y)·t (−s when the line is seen with the flipped normal).
+       The fraction of the piece covered by the segments (each widened by a slack that grows
+       with the pose uncertainty along t and with the heading uncertainty times the distance)
+       must reach ``min_coverage``: a wall seen through a goal mouth or a door is not the wall
+       beside the opening.
+    3. Resolution: a line whose best candidate beats every other by ``decisive_margin`` in d²
+       (a clear likelihood ratio: the d² already carry the pose's uncertainty) keeps only that
+       one; a line left with two candidates is ambiguous. Two lines claiming one reference are
+       fine when they agree with each other (the same wall seen twice); otherwise neither can be
+       trusted.
+
+    Returns the accepted pairs (line, reference, d²), each line's candidate count, the lines
+    left ambiguous, and the number of lines in each conflicting claim.
+    """
+    k, n_ref = d_theta.shape
+    cb, sb = cos_beta, sin_beta
+    candidate = np.zeros((k, n_ref), np.bool_)
+    d2 = np.empty((k, n_ref))
+    any_gated = False
+    for j in range(n_ref):
+        p_rt = cb[j] * pose_cov[0, 2] + sb[j] * pose_cov[1, 2]  # cov(ρ, θ) from the pose
+        p_rr = cb[j] * (cb[j] * pose_cov[0, 0] + 2 * sb[j] * pose_cov[0, 1]) + (
+            sb[j] * sb[j] * pose_cov[1, 1])
+        for i in range(k):
+            s00 = pose_cov[2, 2] + l_cov[i, 0, 0]
+            s01 = p_rt + sign[i, j] * l_cov[i, 0, 1]
+            s11 = p_rr + l_cov[i, 1, 1]
+            dt, dr = d_theta[i, j], d_rho[i, j]
+            d2[i, j] = (s11 * dt * dt - 2.0 * s01 * dt * dr + s00 * dr * dr) / (
+                s00 * s11 - s01 * s01)
+            candidate[i, j] = d2[i, j] <= gate
+            any_gated |= candidate[i, j]
+    if any_gated:
+        covered = np.zeros((k, n_ref))
+        heading_var = max(pose_cov[2, 2], 0.0)
+        for s in range(len(seg_ref)):
+            j = seg_ref[s]
+            tx, ty = -sb[j], cb[j]
+            offset = tx * pose[0] + ty * pose[1]
+            var_along = tx * (tx * pose_cov[0, 0] + 2 * ty * pose_cov[0, 1]) + (
+                ty * ty * pose_cov[1, 1])
+            for i in range(k):
+                if not candidate[i, j]:
+                    continue
+                reach_sq = max(abs(l_s0[i]), abs(l_s1[i])) ** 2
+                slack = extent_margin + 3.0 * math.sqrt(max(var_along, 0.0)
+                                                         + reach_sq * heading_var)
+                lo = seg_s0[s] - offset - slack  # the segment in robot coordinates
+                hi = seg_s1[s] - offset + slack
+                s0, s1 = (-l_s1[i], -l_s0[i]) if sign[i, j] < 0 else (l_s0[i], l_s1[i])
+                covered[i, j] += max(min(s1, hi) - max(s0, lo), 0.0)
+        for i in range(k):
+            need = min_coverage * max(l_s1[i] - l_s0[i], 1e-6)
+            for j in range(n_ref):
+                candidate[i, j] &= covered[i, j] >= need
+    n_cand = np.zeros(k, np.intp)
+    for i in range(k):
+        best, second, best_j = np.inf, np.inf, -1
+        for j in range(n_ref):
+            if candidate[i, j]:
+                n_cand[i] += 1
+                if d2[i, j] < best:
+                    best, second, best_j = d2[i, j], best, j
+                elif d2[i, j] < second:
+                    second = d2[i, j]
+        if n_cand[i] >= 2 and (nearest_only or (
+                decisive_margin >= 0 and second - best >= decisive_margin)):
+            candidate[i] = False  # the nearest (or the decisive) candidate only
+            candidate[i, best_j] = True
+            if not nearest_only:
+                n_cand[i] = 1
+        if nearest_only:
+            n_cand[i] = min(n_cand[i], 1)
+    ambiguous = n_cand >= 2
+    li, rj = [], []
+    claims = np.zeros(n_ref, np.intp)
+    for i in range(k):
+        if n_cand[i] == 1:
+            for j in range(n_ref):
+                if candidate[i, j]:
+                    li.append(i)
+                    rj.append(j)
+                    claims[j] += 1
+    conflicts = []
+    for j in range(n_ref):
+        if claims[j] < 2:
+            continue
+        idx = [li[m] for m in range(len(li)) if rj[m] == j]
+        mean_t = mean_r = 0.0
+        for i in idx:
+            mean_t += d_theta[i, j]
+            mean_r += d_rho[i, j]
+        mean_t /= len(idx)
+        mean_r /= len(idx)
+        for i in idx:
+            if (abs(d_theta[i, j] - mean_t) > 3.0 * math.sqrt(l_cov[i, 0, 0]) + theta_step / 4
+                    or abs(d_rho[i, j] - mean_r) > 3.0 * math.sqrt(l_cov[i, 1, 1])
+                    + rho_step / 4):
+                for i2 in idx:
+                    ambiguous[i2] = True
+                conflicts.append(len(idx))
+                break
+    keep = [m for m in range(len(li)) if not ambiguous[li[m]]]
+    out_l = np.array([li[m] for m in keep], np.intp)
+    out_r = np.array([rj[m] for m in keep], np.intp)
+    out_d2 = np.array([d2[li[m], rj[m]] for m in keep], np.float64)
+    return out_l, out_r, out_d2, n_cand, ambiguous, np.array(conflicts, np.intp)

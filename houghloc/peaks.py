@@ -4,13 +4,12 @@ and non-maximum suppression in a window that wraps around θ."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.config import HoughConfig
+from houghloc.jit import njit
 
 
 @dataclass(frozen=True)
@@ -25,35 +24,50 @@ class Peaks:
         return len(self.votes)
 
 
-@lru_cache(maxsize=8)
-def _kernel(w: int, h: int) -> NDArray[np.uint8]:
-    return np.ones((2 * w + 1, 2 * h + 1), np.uint8)
-
-
 def find_peaks(acc: NDArray[np.integer], n_points: int, config: HoughConfig,
                limit: int | None = None) -> Peaks:
     """Cells with ≥ max(peak_min_votes, peak_fraction·N) votes, maximal in their window.
 
-    The window maximum is a grey dilation (OpenCV) of the accumulator padded by wrapping θ, so a
-    line at θ ≈ 0 and one at θ ≈ 2π are neighbours. Equal neighbours on a plateau both survive;
-    the refinement merges them, since they are the same line.
+    The window spans ±``nms_theta_cells`` rows, wrapping around θ (a line at θ ≈ 0 and one at
+    θ ≈ 2π are neighbours), and ±``nms_rho_cells`` columns, cut at the grid's ends. Equal
+    neighbours on a plateau both survive; the refinement merges them, since they are the same
+    line. Strongest first; among equals, the first in the accumulator's row order.
     """
     threshold = max(config.peak_min_votes, int(np.ceil(config.peak_fraction * n_points)))
-    flat = acc.ravel()
-    cand = np.flatnonzero(flat >= threshold)  # few cells: compare only these with the window
-    if len(cand) == 0:
-        e = np.empty(0, np.intp)
-        return Peaks(e, e, np.empty(0, acc.dtype))
-    w, h = config.nms_theta_cells, config.nms_rho_cells
-    dtype = np.uint16 if n_points < 65535 else np.float32  # types OpenCV dilates
-    # only the columns up to the last candidate (and a window beyond) can matter: near scans
-    # leave the far columns empty
-    i_theta, i_rho = np.divmod(cand, acc.shape[1])
-    used = acc[:, : int(i_rho.max()) + 1 + h]
-    padded = np.concatenate((used[-w:], used, used[:w]), dtype=dtype, casting="unsafe")
-    window_max = cv2.dilate(padded, _kernel(w, h))[w:-w]
-    v = flat[cand]
-    peak = v >= window_max[i_theta, i_rho]
-    v, i_theta, i_rho = v[peak], i_theta[peak], i_rho[peak]
-    order = np.argsort(-v, kind="stable")[: limit or config.max_peaks]
-    return Peaks(i_theta[order], i_rho[order], v[order])
+    i_theta, i_rho, votes = _peaks_kernel(acc, threshold, config.nms_theta_cells,
+                                          config.nms_rho_cells, limit or config.max_peaks)
+    return Peaks(i_theta, i_rho, votes)
+
+
+@njit
+def _peaks_kernel(acc: NDArray[np.int64], threshold: int, w: int, h: int, limit: int
+                  ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.int64]]:
+    n_theta, n_rho = acc.shape
+    i_theta = np.empty(64, np.intp)
+    i_rho = np.empty(64, np.intp)
+    count = 0
+    for i in range(n_theta):
+        for j in range(n_rho):
+            v = acc[i, j]
+            if v < threshold:
+                continue
+            peak = True
+            for di in range(-w, w + 1):
+                row = acc[(i + di) % n_theta]
+                for jj in range(max(j - h, 0), min(j + h + 1, n_rho)):
+                    if row[jj] > v:
+                        peak = False
+                        break
+                if not peak:
+                    break
+            if peak:
+                if count == len(i_theta):  # grow the (rarely full) lists
+                    i_theta = np.concatenate((i_theta, np.empty_like(i_theta)))
+                    i_rho = np.concatenate((i_rho, np.empty_like(i_rho)))
+                i_theta[count], i_rho[count] = i, j
+                count += 1
+    votes = np.empty(count, np.int64)
+    for k in range(count):
+        votes[k] = acc[i_theta[k], i_rho[k]]
+    order = np.argsort(-votes, kind="mergesort")[:limit]  # stable: row order among equals
+    return i_theta[order], i_rho[order], votes[order]

@@ -17,13 +17,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.config import HoughConfig
 from houghloc.geometry import TWO_PI
+from houghloc.jit import fma, njit
 
 
 @dataclass(frozen=True)
@@ -59,154 +59,234 @@ class Lines:
         )
 
 
-def _moments(points: NDArray, weights: NDArray | None = None) -> NDArray:
-    """Per-point monomials w·[1, x, y, x², xy, y²]: one product with a mask gives all line sums
-    (weighted sums when the points have weights)."""
-    mono = np.empty((len(points), 6))
-    mono[:, 0] = 1.0
-    mono[:, 1:3] = points
-    np.multiply(points[:, :1], points, out=mono[:, 3:5])  # x·x, x·y
-    np.multiply(points[:, 1], points[:, 1], out=mono[:, 5])  # y·y
-    return mono if weights is None else mono * weights[:, None]
-
-
-def _tls(monomials: NDArray, mask: NDArray) -> tuple[NDArray, ...]:
-    """Total-least-squares lines through the masked points of each column.
-
-    The scatter matrix comes from the masked sums (Mᵀ·[1, x, y, x², xy, y²]); the normal is the
-    eigenvector of its smallest eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, the mean square
-    residual Σwr²/W, the weight W = Σw (the count N for unit weights), the centroid c (2×K) and
-    the variance along the line (the spread of the points).
-    """
-    sums = monomials.T @ mask.astype(np.float64)  # 6×K
-    n = sums[0]
-    moments = sums[1:] / np.maximum(n, 1.0)
-    cx, cy = moments[0], moments[1]
-    sxx = moments[2] - cx * cx
-    sxy = moments[3] - cx * cy
-    syy = moments[4] - cy * cy
-    theta = 0.5 * np.arctan2(2.0 * sxy, sxx - syy) + 0.5 * np.pi  # normal ⊥ principal axis
-    half_sum, root = 0.5 * (sxx + syy), np.hypot(0.5 * (sxx - syy), sxy)
-    rho = cx * np.cos(theta) + cy * np.sin(theta)
-    theta[rho < 0] += np.pi
-    return (theta % TWO_PI, np.abs(rho), np.maximum(half_sum - root, 0.0), n, moments[:2],
-            half_sum + root)
-
-
-def _split_pieces(points: NDArray, label: NDArray[np.intp], cos_t: NDArray, sin_t: NDArray,
-                  config: HoughConfig) -> NDArray[np.intp]:
-    """Keep only points in contiguous pieces of at least ``min_piece_points`` (all lines at once).
-
-    ``label`` gives each point's line (−1: none), ``cos_t``/``sin_t`` the lines' normals. The
-    labelled points are sorted by (line, coordinate along the line); a step wider than
-    ``piece_gap`` or a change of line starts a new piece. Returns the labels with the points of
-    small pieces set to −1.
-    """
-    idx = np.flatnonzero(label >= 0)
-    if len(idx) == 0:
-        return label
-    lab = label[idx]
-    along = points[idx, 1] * cos_t[lab] - points[idx, 0] * sin_t[lab]
-    # lines are at most a few hundred metres long: the line index dominates the sort key
-    order = np.argsort(lab * 1.0e4 + along)
-    lab, along = lab[order], along[order]
-    starts = np.empty(len(lab), dtype=np.intp)
-    starts[0] = 0
-    np.logical_or(along[1:] - along[:-1] > config.piece_gap, lab[1:] != lab[:-1], out=starts[1:])
-    piece = np.cumsum(starts, out=starts)  # pieces numbered from 0
-    small = np.bincount(piece)[piece] < config.min_piece_points
-    out = label.copy()
-    out[idx[order[small]]] = -1
-    return out
-
-
 def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
                  config: HoughConfig, weights: NDArray | None = None) -> Lines:
     """Refine peaks (θ₀, ρ₀) to TLS lines with covariances; drop those that are not lines.
 
     ``weights`` (relative, mean 1) make it a weighted TLS: var θ = σ²/Σwᵢ(sᵢ − s̄)², var = σ²/Σwᵢ.
+    The steps, compiled as one kernel: (1) the inliers of each peak within one ρ cell (or
+    ``refine_max_band``) are fitted (:func:`_tls`) and the band narrowed to
+    ``refine_band_sigmas`` times the fit's scatter, ``refine_iterations − 1`` times; (2) peaks
+    that are one line with a stronger one are dropped (:func:`_distinct`); (3) each point joins
+    the nearest line whose band holds it, and only contiguous pieces are kept
+    (:func:`_split_pieces`); (4) each line is fitted to its points, with the covariance above,
+    and kept if it has ``min_piece_points``, a scatter ≤ ``max_line_sigma`` and a length ≥
+    ``min_line_length``.
     """
-    monomials = _moments(points, weights)
-    max_band = config.refine_max_band or config.rho_step
-    theta, rho = np.asarray(theta0, float), np.asarray(rho0, float)
-    band = np.full(len(theta), max_band)  # first pass: one cell (or the widest band) each side
+    theta0 = np.ascontiguousarray(theta0, dtype=float)
+    rho0 = np.ascontiguousarray(rho0, dtype=float)
+    unit = weights is None
+    w = np.ones(len(points)) if weights is None else np.ascontiguousarray(weights, dtype=float)
+    theta, rho, cov, n, sigma, s0, s1, members = _refine_kernel(
+        np.ascontiguousarray(points, dtype=float), w, unit, theta0, rho0,
+        config.refine_max_band or config.rho_step, config.refine_iterations,
+        config.refine_band_sigmas, config.refine_min_band, config.theta_step, config.rho_step,
+        config.piece_gap, config.min_piece_points, config.min_line_length,
+        config.max_line_sigma, config.point_sigma_floor, config.line_theta_floor,
+        config.line_rho_floor)
+    return Lines(theta, rho, cov, n, sigma, s0, s1, members)
+
+
+@njit
+def _refine_kernel(points: NDArray, w: NDArray, unit: bool, theta: NDArray, rho: NDArray,
+                   max_band: float, iterations: int, band_sigmas: float, min_band: float,
+                   theta_step: float, rho_step: float, piece_gap: float, min_piece_points: int,
+                   min_line_length: float, max_line_sigma: float, point_sigma_floor: float,
+                   theta_floor: float, rho_floor: float) -> tuple:
+    n_points, k = points.shape[0], theta.shape[0]
+    mono = _moments(points, w)
+    band = np.full(k, max_band)
+    label = np.empty(n_points, np.intp)
+    # (1) fit each peak's inliers, narrow the band; peaks may share points here
     mask = _inliers(points, theta, rho, band)
-    n = mask.sum(axis=0) if config.refine_iterations == 1 else None
-    for it in range(config.refine_iterations - 1):  # re-centre the band on a first fit
+    weight = np.zeros(k)
+    for j in range(k):
+        for i in range(n_points):
+            weight[j] += mask[i, j]
+    for it in range(iterations - 1):
         if it:
             mask = _inliers(points, theta, rho, band)
-        theta, rho, mean_sq, n, _, _ = _tls(monomials, mask)
-        band = np.minimum(np.maximum(config.refine_band_sigmas * np.sqrt(mean_sq),
-                                     config.refine_min_band), max_band)
-    keep = _distinct(mask, n, theta, rho, config)
+        sums = _masked_sums(mono, mask)
+        theta, rho, mean_sq, weight, _, _ = _tls(sums)
+        for j in range(k):
+            band[j] = min(max(band_sigmas * math.sqrt(mean_sq[j]), min_band), max_band)
+    # (2) one line per wall
+    keep = np.flatnonzero(_distinct(mask, weight, theta, rho, theta_step, rho_step))
     theta, rho, band = theta[keep], rho[keep], band[keep]
-    k = len(theta)
+    k = len(keep)
+    # (3) each point to the nearest line whose band holds it: a point near a corner biases only
+    # the wall it is on, and twin peaks cannot share their points
     cos_t, sin_t = np.cos(theta), np.sin(theta)
-    # Each point now belongs to the nearest line whose band holds it: a point near a corner
-    # biases only the wall it is on, and twin peaks cannot share their points.
-    if k:
-        dist = np.abs(points @ np.array((cos_t, sin_t)) - rho) / band
-        nearest = np.argmin(dist, axis=1)
-        label = np.where(dist[np.arange(len(points)), nearest] <= 1.0, nearest, -1)
-        label = _split_pieces(points, label, cos_t, sin_t, config)
-    else:
-        label = np.full(len(points), -1, dtype=np.intp)
-    mask = label[:, None] == np.arange(k)
-    theta, rho, mean_sq, weight, c, spread_var = _tls(monomials, mask)
-    n = np.bincount(label + 1, minlength=k + 1)[1:] if weights is not None else weight
-    var = mean_sq * weight / np.maximum(n - 2.0, 1.0)  # σ² = Σwr² / (N − 2), unbiased
-
-    sigma = np.sqrt(var)
+    for i in range(n_points):
+        label[i] = -1
+        best = np.inf
+        for j in range(k):
+            d = abs(fma(points[i, 1], sin_t[j], points[i, 0] * cos_t[j]) - rho[j]) / band[j]
+            if d < best:
+                best, label[i] = d, j
+        if best > 1.0:
+            label[i] = -1
+    _split_pieces(points, label, cos_t, sin_t, piece_gap, min_piece_points)
+    # (4) the final fits, their extents and covariances
+    on_line = np.zeros((n_points, k), np.bool_)
+    count = np.zeros(k)
+    for i in range(n_points):
+        if label[i] >= 0:
+            on_line[i, label[i]] = True
+            count[label[i]] += 1.0
+    theta, rho, mean_sq, weight, centroid, spread_var = _tls(_masked_sums(mono, on_line))
+    if unit:
+        count = weight
     cos_t, sin_t = np.cos(theta), np.sin(theta)
-    s_bar = cos_t * c[1] - sin_t * c[0]  # centroid along t = (−sin θ, cos θ)
-    # extent of each line's points along it (±inf for a line left without points)
-    on_line = np.flatnonzero(label >= 0)
-    line_of = label[on_line]
-    along = (points @ np.array((-sin_t, cos_t)))[on_line, line_of]
     s0, s1 = np.full(k, np.inf), np.full(k, -np.inf)
-    np.minimum.at(s0, line_of, along)
-    np.maximum.at(s1, line_of, along)
-    ok = (n >= config.min_piece_points) & (sigma <= config.max_line_sigma) & (
-        s1 - s0 >= config.min_line_length)
-    var_eff = np.maximum(var, config.point_sigma_floor**2)
-    v_theta = var_eff / np.maximum(spread_var * weight, 1e-12)  # σ² / Σwᵢ(sᵢ − s̄)²
-    v_off = var_eff / np.maximum(weight, 1e-12)  # σ² / Σwᵢ
+    for i in range(n_points):
+        j = label[i]
+        if j >= 0:
+            along = fma(points[i, 1], cos_t[j], points[i, 0] * -sin_t[j])
+            s0[j], s1[j] = min(s0[j], along), max(s1[j], along)
+    good = np.empty(k, np.bool_)
     cov = np.empty((k, 2, 2))
-    # Real walls are not perfect lines and sensors have small biases: a floor keeps thousands of
-    # points from claiming sub-millimetre certainty.
-    cov[:, 0, 0] = v_theta + config.line_theta_floor**2
-    cov[:, 0, 1] = cov[:, 1, 0] = s_bar * v_theta
-    cov[:, 1, 1] = v_off + s_bar**2 * v_theta + config.line_rho_floor**2
-    lines = Lines(theta, rho, cov, n.astype(np.int64), sigma, s0, s1, mask)
-    return lines if ok.all() else lines.subset(ok)
+    sigma = np.empty(k)
+    for j in range(k):
+        var = mean_sq[j] * weight[j] / max(count[j] - 2.0, 1.0)  # σ² = Σwr² / (N − 2), unbiased
+        sigma[j] = math.sqrt(var)
+        good[j] = (count[j] >= min_piece_points and sigma[j] <= max_line_sigma
+                   and s1[j] - s0[j] >= min_line_length)
+        s_bar = cos_t[j] * centroid[1, j] - sin_t[j] * centroid[0, j]  # along t = (−sin, cos)
+        var_eff = max(var, point_sigma_floor**2)
+        v_theta = var_eff / max(spread_var[j] * weight[j], 1e-12)  # σ² / Σwᵢ(sᵢ − s̄)²
+        v_off = var_eff / max(weight[j], 1e-12)  # σ² / Σwᵢ
+        # Real walls are not perfect lines and sensors have small biases: a floor keeps
+        # thousands of points from claiming sub-millimetre certainty.
+        cov[j, 0, 0] = v_theta + theta_floor**2
+        cov[j, 0, 1] = cov[j, 1, 0] = s_bar * v_theta
+        cov[j, 1, 1] = v_off + s_bar**2 * v_theta + rho_floor**2
+    ok = np.flatnonzero(good)
+    return (theta[ok], rho[ok], cov[ok], count[ok].astype(np.int64), sigma[ok], s0[ok], s1[ok],
+            np.ascontiguousarray(on_line[:, ok]))
 
 
-def _inliers(points: NDArray, theta: NDArray, rho: NDArray, band: NDArray | float) -> NDArray:
+@njit
+def _moments(points: NDArray, weights: NDArray) -> NDArray:
+    """Per-point monomials w·[1, x, y, x², xy, y²]: one product with a mask gives all line sums
+    (weighted sums when the points have weights)."""
+    mono = np.empty((len(points), 6))
+    for i in range(len(points)):
+        x, y, wi = points[i, 0], points[i, 1], weights[i]
+        mono[i, 0], mono[i, 1], mono[i, 2] = wi, x * wi, y * wi
+        mono[i, 3], mono[i, 4], mono[i, 5] = x * x * wi, x * y * wi, y * y * wi
+    return mono
+
+
+@njit
+def _masked_sums(mono: NDArray, mask: NDArray[np.bool_]) -> NDArray:
+    """6×K: Σ over each column's masked points of the monomials."""
+    sums = np.zeros((6, mask.shape[1]))
+    for i in range(mask.shape[0]):
+        for j in range(mask.shape[1]):
+            if mask[i, j]:
+                for m in range(6):
+                    sums[m, j] += mono[i, m]
+    return sums
+
+
+@njit
+def _tls(sums: NDArray) -> tuple:
+    """Total-least-squares lines from each column's masked sums (:func:`_masked_sums`).
+
+    The scatter matrix comes from the sums of [1, x, y, x², xy, y²]; the normal is the
+    eigenvector of its smallest eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, the mean square
+    residual Σwr²/W, the weight W = Σw (the count N for unit weights), the centroid c (2×K) and
+    the variance along the line (the spread of the points).
+    """
+    k = sums.shape[1]
+    theta, rho, mean_sq, spread = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    centroid = np.empty((2, k))
+    for j in range(k):
+        n = max(sums[0, j], 1.0)
+        cx, cy = sums[1, j] / n, sums[2, j] / n
+        sxx = sums[3, j] / n - cx * cx
+        sxy = sums[4, j] / n - cx * cy
+        syy = sums[5, j] / n - cy * cy
+        t = 0.5 * math.atan2(2.0 * sxy, sxx - syy) + 0.5 * np.pi  # normal ⊥ principal axis
+        half_sum, root = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
+        r = cx * math.cos(t) + cy * math.sin(t)
+        if r < 0:
+            t += np.pi
+        theta[j], rho[j] = t % TWO_PI, abs(r)
+        mean_sq[j], spread[j] = max(half_sum - root, 0.0), half_sum + root
+        centroid[0, j], centroid[1, j] = cx, cy
+    return theta, rho, mean_sq, sums[0].copy(), centroid, spread
+
+
+@njit
+def _split_pieces(points: NDArray, label: NDArray[np.intp], cos_t: NDArray, sin_t: NDArray,
+                  piece_gap: float, min_piece_points: int) -> None:
+    """Keep only points in contiguous pieces of at least ``min_piece_points`` (all lines at once).
+
+    ``label`` gives each point's line (−1: none), ``cos_t``/``sin_t`` the lines' normals. The
+    labelled points are sorted by (line, coordinate along the line); a step wider than
+    ``piece_gap`` or a change of line starts a new piece. The points of small pieces are set to
+    −1 in ``label``.
+    """
+    idx = np.flatnonzero(label >= 0)
+    if len(idx) == 0:
+        return
+    lab = label[idx]
+    along = np.empty(len(idx))
+    for m in range(len(idx)):
+        along[m] = points[idx[m], 1] * cos_t[lab[m]] - points[idx[m], 0] * sin_t[lab[m]]
+    # lines are at most a few hundred metres long: the line index dominates the sort key
+    order = np.argsort(lab * 1.0e4 + along)
+    start = 0
+    for m in range(1, len(order) + 1):
+        if (m == len(order) or lab[order[m]] != lab[order[m - 1]]
+                or along[order[m]] - along[order[m - 1]] > piece_gap):
+            if m - start < min_piece_points:
+                for q in range(start, m):
+                    label[idx[order[q]]] = -1
+            start = m
+
+
+@njit
+def _inliers(points: NDArray, theta: NDArray, rho: NDArray, band: NDArray) -> NDArray:
     """N×K mask of |p·n − ρ| ≤ band."""
-    return np.abs(points @ np.array((np.cos(theta), np.sin(theta))) - rho) <= band
+    cos_t, sin_t = np.cos(theta), np.sin(theta)
+    mask = np.empty((len(points), len(theta)), np.bool_)
+    for i in range(len(points)):
+        for j in range(len(theta)):
+            p_n = fma(points[i, 1], sin_t[j], points[i, 0] * cos_t[j])
+            mask[i, j] = abs(p_n - rho[j]) <= band[j]
+    return mask
 
 
+@njit
 def _distinct(mask: NDArray[np.bool_], n: NDArray, theta: NDArray, rho: NDArray,
-              config: HoughConfig) -> NDArray[np.bool_]:
+              theta_step: float, rho_step: float) -> NDArray[np.bool_]:
     """Drop peaks that are one line with a stronger peak: they found mostly the same points
     (plateaus, a noisy line's spread of peaks, the θ ↔ θ+π twins of a line through the sensor),
     or they refined to within half a cell of it (a short line near the sensor, whose peaks at
     neighbouring θ catch different parts of it). Lines meeting at a corner share a few points
     only and differ by far more than half a cell."""
-    m = mask.astype(np.float32)
-    shared = m.T @ m  # K×K counts of common inliers
-    same = shared > 0.5 * np.minimum(n[:, None], n)
-    # |θᵢ − θⱼ| < δθ/2 (wrapped) as cos(θᵢ − θⱼ) = cos θᵢ cos θⱼ + sin θᵢ sin θⱼ > cos(δθ/2)
+    k = len(n)
+    shared = np.zeros((k, k))  # counts of common inliers
+    for i in range(mask.shape[0]):
+        for a in range(k):
+            if mask[i, a]:
+                for b in range(k):
+                    shared[a, b] += mask[i, b]
     cos_t, sin_t = np.cos(theta), np.sin(theta)
-    near = np.multiply.outer(cos_t, cos_t) + np.multiply.outer(sin_t, sin_t)
-    same |= (near > math.cos(0.5 * config.theta_step)) & (np.abs(rho[:, None] - rho[None, :])
-                                                          < 0.5 * config.rho_step)
-    # stronger[i, j]: line j outranks line i (more inliers; on a tie, the earlier, stronger peak)
-    stronger = (n > n[:, None]) | ((n == n[:, None]) & _earlier(len(n)))
-    return (n > 0) & ~(same & stronger).any(axis=1)
-
-
-@lru_cache(maxsize=64)
-def _earlier(k: int) -> NDArray[np.bool_]:
-    """K×K: column j comes before row i."""
-    return np.tri(k, k, -1, dtype=bool)
+    near_cos = math.cos(0.5 * theta_step)
+    keep = n > 0
+    for i in range(k):
+        for j in range(k):
+            # line j outranks line i: more inliers; on a tie, the earlier, stronger peak
+            if not (n[j] > n[i] or (n[j] == n[i] and j < i)):
+                continue
+            # |θᵢ − θⱼ| < δθ/2 (wrapped) as cos(θᵢ − θⱼ) > cos(δθ/2)
+            near = (cos_t[i] * cos_t[j] + sin_t[i] * sin_t[j] > near_cos
+                    and abs(rho[i] - rho[j]) < 0.5 * rho_step)
+            if shared[i, j] > 0.5 * min(n[i], n[j]) or near:
+                keep[i] = False
+                break
+    return keep

@@ -23,6 +23,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from scipy.spatial import cKDTree
 
 from houghloc.geometry import TWO_PI, ray_segment_distances
+from houghloc.jit import njit
 from houghloc.yaml_io import read_yaml
 
 SegmentKind = Literal["wall", "line"]
@@ -262,6 +263,7 @@ class SegmentMap:
             line_of[i] = found
         self.line_alpha = np.asarray(line_alpha)
         self.line_r = np.asarray(line_r)
+        self._line_normal = np.stack((np.cos(self.line_alpha), np.sin(self.line_alpha)))  # 2×L
         self.line_of_segment = line_of
         t = np.column_stack((-np.sin(self.line_alpha), np.cos(self.line_alpha)))[line_of]
         s_a = np.einsum("ij,ij->i", self.starts, t)
@@ -310,15 +312,10 @@ class SegmentMap:
         segs, lines, seg_ref = self._visible((x, y), max_range, tuple(kinds), n_rays)
         if len(segs) == 0:
             return _empty_references()
-        alpha, r = self.line_alpha[lines], self.line_r[lines]
-        rho = r - (x * np.cos(alpha) + y * np.sin(alpha))
-        flipped = rho < 0
-        beta = np.where(flipped, alpha + np.pi, alpha)
-        theta = np.mod(beta - th, TWO_PI)
-        sign = np.where(flipped, -1.0, 1.0)[seg_ref]  # direction (−sin β, cos β) flips with β
-        s0, s1 = self.seg_s0[segs] * sign, self.seg_s1[segs] * sign
-        return References(lines, theta, np.abs(rho), np.mod(beta, TWO_PI), seg_ref,
-                          np.minimum(s0, s1), np.maximum(s0, s1))
+        theta, rho, beta, s0, s1 = _predict_references(
+            self.line_alpha, self.line_r, self._line_normal, self.seg_s0, self.seg_s1, segs,
+            lines, seg_ref, x, y, th)
+        return References(lines, theta, rho, beta, seg_ref, s0, s1)
 
     def _visible(self, origin: tuple[float, float], max_range: float, kinds: tuple[str, ...],
                  n_rays: int) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
@@ -364,6 +361,30 @@ class SegmentMap:
         along = np.clip(-(p0 * e).sum(axis=1) / (e * e).sum(axis=1), 0.0, 1.0)
         clearance = float(np.sqrt(((p0 + along[:, None] * e) ** 2).sum(axis=1).min()))
         return segs[np.unique(first[seen])], clearance
+
+
+@njit
+def _predict_references(line_alpha: NDArray, line_r: NDArray, line_normal: NDArray,
+                        seg_s0: NDArray, seg_s1: NDArray, segs: NDArray, lines: NDArray,
+                        seg_ref: NDArray, x: float, y: float, th: float) -> tuple:
+    """Each line's Hough point seen from (x, y, θ): ρ = r − (x cos α + y sin α); a negative ρ
+    means the robot sees the line's normal reversed, β = α + π. θ_r = β − θ. Each segment's
+    extent along (−sin β, cos β), which flips with β."""
+    n_lines = len(lines)
+    theta, rho, beta = np.empty(n_lines), np.empty(n_lines), np.empty(n_lines)
+    flipped = np.empty(n_lines, np.bool_)
+    for k in range(n_lines):
+        m = lines[k]
+        signed = line_r[m] - (x * line_normal[0, m] + y * line_normal[1, m])
+        flipped[k] = signed < 0
+        b = line_alpha[m] + np.pi if flipped[k] else line_alpha[m]
+        theta[k], rho[k], beta[k] = (b - th) % TWO_PI, abs(signed), b % TWO_PI
+    s0, s1 = np.empty(len(segs)), np.empty(len(segs))
+    for q in range(len(segs)):
+        sign = -1.0 if flipped[seg_ref[q]] else 1.0
+        a, b = seg_s0[segs[q]] * sign, seg_s1[segs[q]] * sign
+        s0[q], s1[q] = min(a, b), max(a, b)
+    return theta, rho, beta, s0, s1
 
 
 def _pack_visible(segs: NDArray, lines: NDArray, seg_ref: NDArray) -> NDArray[np.int32]:

@@ -11,7 +11,6 @@ is the row θ at −ρ, since (θ + π, ρ) ≡ (θ, −ρ).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -20,6 +19,7 @@ from numpy.typing import NDArray
 
 from houghloc.config import HoughConfig
 from houghloc.geometry import TWO_PI
+from houghloc.jit import fma, njit
 
 
 @dataclass(frozen=True)
@@ -35,10 +35,6 @@ class HoughGrid:
     trig: NDArray[np.float64]
     # cos/sin of the first half-circle's cell centres over δρ (float32), 2×(T/2): ρ in cells
     half_trig32: NDArray[np.float32]
-    # first flat index of each half-circle row in the voting buffer: signed-ρ rows of
-    # 2·(n_rho − margin) cells with a guard cell at each end, so that out-of-range votes are
-    # clipped there instead of filtered out
-    half_offsets: NDArray[np.intp]
     signed_cells: int  # n_rho − margin: cells on each side of ρ = 0 in a signed row
     margin_cells: int
 
@@ -65,9 +61,8 @@ def _grid(theta_step: float, rho_step: float, rho_max: float, margin_cells: int)
     trig = np.vstack((np.cos(thetas), np.sin(thetas)))
     signed = n_rho - margin_cells
     half = n_theta // 2
-    offsets = (np.arange(half, dtype=np.intp) * (2 * signed + 2))[None, :]
     return HoughGrid(theta_step, rho_step, rho_min, n_theta, n_rho, trig,
-                     (trig[:, :half] / rho_step).astype(np.float32), offsets, signed, margin_cells)
+                     (trig[:, :half] / rho_step).astype(np.float32), signed, margin_cells)
 
 
 def make_grid(config: HoughConfig) -> HoughGrid:
@@ -78,22 +73,38 @@ def make_grid(config: HoughConfig) -> HoughGrid:
 def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int64]:
     """Accumulate HT(θ, ρ): each point votes once per θ row, in the cell where its ρ falls.
 
-    One float32 matrix product gives the signed ρ for every (point, θ < π) (float32 resolves ρ to
-    a micrometre at 20 m; the grid is centimetres). The cell coordinate is shifted so that
-    truncation is floor and out-of-range votes clip into a guard cell at each end of the row
-    (cheaper than filtering); ``np.bincount`` sums the flat indices. The signed rows are then
-    unfolded into θ ∈ [0, 2π), ρ ≥ ρ_min. Returns the accumulator, ``n_theta × n_rho``.
+    The signed ρ of every (point, θ < π) is computed in float32 (it resolves ρ to a micrometre
+    at 20 m; the grid is centimetres) as ρ/δρ = (x cos θ + y sin θ)/δρ, one fused multiply-add.
+    The cell coordinate is shifted so that truncation is floor; votes beyond ±``rho_max`` clip
+    into a guard cell at each end of the signed row, which no cell reads. Each signed vote lands
+    in two rows of the unfolded accumulator (θ ∈ [0, 2π), ρ ≥ ρ_min): row θ at ρ, and row θ + π
+    at −ρ, since (θ + π, ρ) ≡ (θ, −ρ); a vote within the margin of ρ = 0 counts in both.
+    Returns the accumulator, ``n_theta × n_rho``.
     """
-    u, m, n_rho = grid.signed_cells, grid.margin_cells, grid.n_rho
-    q = points.astype(np.float32) @ grid.half_trig32  # N×(T/2): ρ/δρ = (x cos θ + y sin θ)/δρ
-    q += np.float32(u + 1)  # signed cell index + guard
-    if np.abs(points).max(initial=0.0) * math.sqrt(2.0) >= u * grid.rho_step:  # |ρ| ≤ |x| + |y|
-        np.clip(q, 0.0, 2 * u + 1, out=q)  # only points out of range need the guards
-    flat = q.astype(np.intp)
-    flat += grid.half_offsets
-    width = 2 * u + 2
-    signed = np.bincount(flat.ravel(), minlength=(grid.n_theta // 2) * width).reshape(-1, width)
-    # cell c of row θ holds ρ ∈ [(c − m)δ, (c − m + 1)δ): the signed cell c − m of row θ, and for
-    # row θ + π the signed cell −(c − m + 1) (mirrored), both shifted by u + 1 for the guard
-    return np.concatenate((signed[:, u + 1 - m: u + 1 - m + n_rho],
-                           signed[:, u + m: u + m - n_rho: -1]))
+    acc = np.empty((grid.n_theta, grid.n_rho), dtype=np.int64)
+    _vote_kernel(points, grid.half_trig32, grid.signed_cells, grid.margin_cells, acc)
+    return acc
+
+
+@njit
+def _vote_kernel(points: NDArray[np.float64], half_trig32: NDArray[np.float32], u: int, m: int,
+                 acc: NDArray[np.int64]) -> None:
+    half, n_rho, n = half_trig32.shape[1], acc.shape[1], points.shape[0]
+    shift, top = np.float32(u + 1), np.float32(2 * u + 1)  # signed cell c − (u + 1) holds ρ/δρ
+    xs, ys = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
+    cells = np.empty(n, np.int32)
+    signed = np.empty(2 * u + 2, np.int64)  # one signed row, a guard cell at each end
+    for i in range(half):
+        c, s = half_trig32[0, i], half_trig32[1, i]
+        for k in range(n):  # the cells first (vectorised), then the counts
+            q = fma(ys[k], s, xs[k] * c) + shift
+            cells[k] = np.int32(min(max(q, np.float32(0.0)), top))
+        signed[:] = 0
+        for k in range(n):
+            signed[cells[k]] += 1
+        # cell j of row θ holds ρ ∈ [(j − m)δ, (j − m + 1)δ): the signed cell j − m; in row θ + π
+        # the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard
+        row, mirrored = acc[i], acc[i + half]
+        for j in range(n_rho):
+            row[j] = signed[u + 1 - m + j]
+            mirrored[j] = signed[u + m - j]
