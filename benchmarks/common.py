@@ -74,6 +74,39 @@ def opencv_voting(points: np.ndarray) -> Callable[[], object]:
                                           np.pi / 180)
 
 
+def icp_alignment(m: SegmentMap, points: np.ndarray, guess: np.ndarray
+                  ) -> Callable[[], object] | None:
+    """One scan-to-map point-to-point ICP alignment (``small_gicp``, the benchmark's ICP peer with
+    its settings) of ``points`` from ``guess``, against the map as the benchmark gives it to ICP
+    (points along the segments, one per 2.5 cm cell); None when the peers extra is not
+    installed."""
+    try:
+        import small_gicp
+    except ImportError:
+        return None
+    from fusion.bench.data import MAP_POINT_SPACING, thin
+    from fusion.bench.methods import ICP_MAX_CORRESPONDENCE, ICP_MAX_ITERATIONS
+
+    along = [a + np.linspace(0.0, 1.0, max(2, int(np.ceil(np.hypot(*(b - a)) / 0.01)) + 1))[:, None]
+             * (b - a) for a, b in zip(m.starts, m.ends, strict=True)]
+    target_xy = thin(np.concatenate(along), MAP_POINT_SPACING)
+    target = small_gicp.PointCloud(np.column_stack((target_xy, np.zeros(len(target_xy)))))
+    tree = small_gicp.KdTree(target)
+    xyz = np.column_stack((points, np.zeros(len(points))))
+    c, s = np.cos(guess[2]), np.sin(guess[2])
+    init = np.eye(4)
+    init[:2, :2] = ((c, -s), (s, c))
+    init[:2, 3] = guess[:2]
+
+    def align() -> object:
+        return small_gicp.align(target, small_gicp.PointCloud(xyz), tree, init,
+                                registration_type="ICP",
+                                max_correspondence_distance=ICP_MAX_CORRESPONDENCE,
+                                max_iterations=ICP_MAX_ITERATIONS)
+
+    return align
+
+
 def yardstick_seconds(calls: int = 200) -> float:
     """Median seconds of the peer on a fixed 361-beam RoboCup scan: the machine's speed now.
 

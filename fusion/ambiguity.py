@@ -442,6 +442,8 @@ class AmbiguityManager:
     def fit_fractions(self, poses: NDArray, points: NDArray,
                       kinds: tuple[str, ...] = ("wall",)) -> NDArray[np.float64]:
         """:meth:`fit_fraction` at each of ``poses`` (P×3) at once."""
+        if len(points) == 0:
+            return np.zeros(len(poses))
         gm = self.config.global_match
         walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
         return (walls.at(poses, points[:, 0], points[:, 1]) <= gm.inlier_distance).mean(axis=1)

@@ -100,23 +100,6 @@ class PoseEKF(ExtendedKalmanFilter):
         self.predict(u=delta)
         self.P = 0.5 * (self.P + self.P.T)
 
-    def innovation(
-        self, z: ArrayLike, r: NDArray[np.float64], basis: NDArray[np.float64] | None = None
-    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], float]:
-        """(H, y, S, NIS) of a pose measurement z with covariance R, without updating.
-
-        H = Uᵀ, y = Uᵀ(z ⊖ x) with the angle difference wrapped, S = H P Hᵀ + Uᵀ R U,
-        NIS = yᵀ S⁻¹ y. Raises ``LinAlgError`` if S is not positive definite.
-        """
-        h = (_FULL_BASIS if basis is None else basis).T
-        d = np.asarray(z, dtype=float) - self.x
-        d[2] = wrap_angle(d[2])
-        y = h @ d
-        s = h @ (self.P + r) @ h.T
-        chol = np.linalg.cholesky(s)
-        w = np.linalg.solve(chol, y)
-        return h, y, s, float(w @ w)
-
     def update_pose(
         self, z: ArrayLike, r: ArrayLike, basis: NDArray[np.float64] | None = None
     ) -> UpdateOutcome:
@@ -125,22 +108,33 @@ class PoseEKF(ExtendedKalmanFilter):
         With ``basis`` U (3×k, orthonormal columns) only the k observable directions are
         measured: z_k = Uᵀz, R_k = UᵀRU, H = Uᵀ. Nothing is measured along the unobserved
         directions: they change only through their prior correlation with the observed ones.
-        Inputs are assumed finite and validated by the caller (see ``PoseTracker``).
+        The residual is y = Uᵀ(z ⊖ x), its angle wrapped; NIS = yᵀ S⁻¹ y with filterpy's own
+        S = H P Hᵀ + R_k and S⁻¹ (one call computes both the gate's figure and the update, and
+        the prior is put back when the gate refuses it). Inputs are assumed finite and validated
+        by the caller (see ``PoseTracker``).
         """
         r = np.asarray(r, dtype=float)
+        h = (_FULL_BASIS if basis is None else basis).T
+        d = np.asarray(z, dtype=float) - self.x
+        d[2] = wrap_angle(d[2])
+        y = h @ d
+        prior_x, prior_p = self.x, self.P  # filterpy assigns new arrays: these stay the prior
         try:
-            h, y, _, nis = self.innovation(z, r, basis)
+            # Hand filterpy the measurement H x + y, so its plain subtraction z - Hx yields the
+            # wrapped residual y (a measured angle near +π against a state near -π moves the
+            # short way); then K = P Hᵀ S⁻¹, x = x + K y, P = (I-KH) P (I-KH)ᵀ + K R Kᵀ
+            # (Joseph form).
+            super().update(h @ self.x + y, _constant_jacobian, _project, R=h @ r @ h.T,
+                           args=(h,), hx_args=(h,))
+            np.linalg.cholesky(self.S)  # S must be positive definite, not merely invertible
         except np.linalg.LinAlgError:
+            self.x, self.P = prior_x, prior_p
             return UpdateOutcome(False, 0.0, 0, status="invalid")
+        nis = float(self.y @ self.SI @ self.y)
         dof = h.shape[0]
         if not nis <= self.gates[dof]:
+            self.x, self.P = prior_x, prior_p
             return UpdateOutcome(False, nis, dof, y, status="rejected")
-        # Hand filterpy the measurement H x + y, so its plain subtraction z - Hx yields the
-        # wrapped residual y (a measured angle near +π against a state near -π moves the short
-        # way); then K = P Hᵀ S⁻¹, x = x + K y, P = (I-KH) P (I-KH)ᵀ + K R Kᵀ (Joseph form).
-        super().update(
-            h @ self.x + y, _constant_jacobian, _project, R=h @ r @ h.T, args=(h,), hx_args=(h,)
-        )
         self.x[2] = wrap_angle(self.x[2])
         self.P = symmetric_pd(self.P)
         return UpdateOutcome(True, nis, dof, y)

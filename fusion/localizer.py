@@ -29,6 +29,7 @@ from fusion.tracker import PoseTracker
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points
+from houghloc.jit import warm_up
 from houghloc.localize import clean_points
 
 log = logging.getLogger(__name__)
@@ -101,6 +102,7 @@ class Localizer:
         self.map = map
         self.config = config or LocalizerConfig()
         self.logger = logger or NullLogger()
+        warm_up()  # the compiled kernels, before the first scan rather than on it
         fc = self.config.filter
         pose = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=float)
         if initial_pose is not None:
@@ -264,12 +266,15 @@ class Localizer:
         t1 = perf_counter()
         self.stats.seconds["hough"] += t1 - t0
         kinds = cfg.hough.reference_kinds
-        guess_fit = (self.manager.fit_fraction(guess, points, kinds)
-                     if self.manager.judges_by_fit else None)
-        # the fix's own fraction on walls, once, for every check that wants it
-        fix_fit = (self.manager.fit_fraction(fix.pose, points, kinds)
-                   if fix.rank > 0 and (self.manager.judges_fixes or guess_fit is not None)
-                   else None)
+        # the fractions of the scan on walls at the guess and at the fix, once (in one pass),
+        # for every check that wants them
+        want_guess = self.manager.judges_by_fit
+        want_fix = fix.rank > 0 and (self.manager.judges_fixes or want_guess)
+        wanted = [pose for pose, want in ((guess, want_guess), (fix.pose, want_fix)) if want]
+        fits = (self.manager.fit_fractions(np.array(wanted), points, kinds).tolist() if wanted
+                else [])
+        guess_fit = fits.pop(0) if want_guess else None
+        fix_fit = fits.pop(0) if want_fix else None
         status, outcome = self._use_fix(t, fix, points, cfg, guess_fit, fix_fit)
         if status != "accepted":
             fix_fit = None

@@ -68,7 +68,8 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         z = np.zeros((3, 0))
         return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
                             z, np.eye(3), 0.0, 0)
-    terms = _normal_equations(matches.cov, matches.residual, np.cos(beta), np.sin(beta))
+    terms = _normal_equations(np.ascontiguousarray(matches.cov),
+                              np.ascontiguousarray(matches.residual), np.cos(beta), np.sin(beta))
     info = terms[_INFO_LAYOUT]
     b = -terms[6:9]
     full, delta, cov, chi2_total = _full_rank_solution(terms, info, b, max_observable_sigma)

@@ -132,8 +132,13 @@ def ray_segment_distances(
     the segment's end-on neighbour instead, as a real scanner would).
     """
     origin = np.asarray(origin, dtype=float)
-    return _ray_segment_kernel(origin[0], origin[1], np.asarray(dirs, dtype=float),
-                               np.asarray(starts, dtype=float), np.asarray(ends, dtype=float))
+    return _ray_segment_kernel(float(origin[0]), float(origin[1]), _rows(dirs), _rows(starts),
+                               _rows(ends))
+
+
+def _rows(values: ArrayLike) -> NDArray[np.float64]:
+    """A C-contiguous float64 array (the kernels are compiled for that layout only)."""
+    return np.ascontiguousarray(values, dtype=float)
 
 
 @njit

@@ -265,11 +265,16 @@ class WallDistance:
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         out = _distances_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,
                             poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
-                            np.ravel(x), np.ravel(y), smooth)
+                            _flat(x), _flat(y), smooth)
         return out.reshape((len(poses),) + shape)
 
 
 _IDENTITY = np.zeros((1, 3))
+
+
+def _flat(values: NDArray) -> NDArray[np.float64]:
+    """One contiguous float64 row (the kernels are compiled for that layout only)."""
+    return np.ascontiguousarray(np.ravel(values), dtype=float)
 
 
 @njit

@@ -112,8 +112,8 @@ def _match(lines: Lines, refs: References, table: PairTable, pose: NDArray, pose
     reasons for what was left out."""
     margin = -1.0 if config.decisive_d2_margin is None else config.decisive_d2_margin
     li, rj, d2, n_cand, ambiguous, claims = _match_kernel(
-        lines.cov, lines.s0, lines.s1, table.d_theta, table.d_rho, table.sign, table.cos_beta,
-        table.sin_beta, refs.seg_ref, refs.seg_s0, refs.seg_s1,
+        np.ascontiguousarray(lines.cov), lines.s0, lines.s1, table.d_theta, table.d_rho,
+        table.sign, table.cos_beta, table.sin_beta, refs.seg_ref, refs.seg_s0, refs.seg_s1,
         np.ascontiguousarray(pose, dtype=float), np.ascontiguousarray(pose_cov, dtype=float),
         gate_threshold(config.gate_probability), config.extent_margin,
         config.min_extent_coverage, config.nearest_neighbour_only, margin, config.theta_step,

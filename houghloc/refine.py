@@ -270,11 +270,16 @@ def _distinct(mask: NDArray[np.bool_], n: NDArray, theta: NDArray, rho: NDArray,
     only and differ by far more than half a cell."""
     k = len(n)
     shared = np.zeros((k, k))  # counts of common inliers
+    mine = np.empty(k, np.intp)  # the lines of one point: a few at most
     for i in range(mask.shape[0]):
+        m = 0
         for a in range(k):
             if mask[i, a]:
-                for b in range(k):
-                    shared[a, b] += mask[i, b]
+                mine[m] = a
+                m += 1
+        for a in range(m):
+            for b in range(m):
+                shared[mine[a], mine[b]] += 1.0
     cos_t, sin_t = np.cos(theta), np.sin(theta)
     near_cos = math.cos(0.5 * theta_step)
     keep = n > 0

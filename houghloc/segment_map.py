@@ -350,17 +350,35 @@ class SegmentMap:
         """Segments that are the first wall hit by at least one of ``n_rays`` rays, and the
         distance from the origin to the nearest of ``segs``."""
         phi = np.linspace(0.0, TWO_PI, n_rays, endpoint=False)
+        starts, ends = self.starts[segs], self.ends[segs]
         t = ray_segment_distances(origin, np.column_stack((np.cos(phi), np.sin(phi))),
-                                  self.starts[segs], self.ends[segs])  # R×S
-        t[t > max_range] = np.inf
-        first = np.argmin(t, axis=1)
-        seen = np.isfinite(t[np.arange(n_rays), first])
-        p0 = self.starts[segs] - origin  # S×2
-        e = self.ends[segs] - self.starts[segs]
-        # distance to the nearest segment: the projection of the origin, clamped to the segment
-        along = np.clip(-(p0 * e).sum(axis=1) / (e * e).sum(axis=1), 0.0, 1.0)
-        clearance = float(np.sqrt(((p0 + along[:, None] * e) ** 2).sum(axis=1).min()))
-        return segs[np.unique(first[seen])], clearance
+                                  starts, ends)  # R×S
+        hit, clearance = _first_hits_and_clearance(t, max_range, starts, ends, *origin)
+        return segs[hit], clearance
+
+
+@njit
+def _first_hits_and_clearance(t: NDArray, max_range: float, starts: NDArray, ends: NDArray,
+                              ox: float, oy: float) -> tuple[NDArray[np.bool_], float]:
+    """Which segments are the nearest hit (within ``max_range``) of at least one ray, given the
+    rays' distances ``t`` (R×S), and the distance from the origin to the nearest segment: the
+    projection of the origin, clamped to the segment."""
+    hit = np.zeros(t.shape[1], np.bool_)
+    for i in range(t.shape[0]):
+        first, nearest = -1, np.inf
+        for j in range(t.shape[1]):
+            if t[i, j] < nearest and t[i, j] <= max_range:
+                first, nearest = j, t[i, j]
+        if first >= 0:
+            hit[first] = True
+    clearance_sq = np.inf
+    for j in range(len(starts)):
+        p0x, p0y = starts[j, 0] - ox, starts[j, 1] - oy
+        ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
+        along = min(max(-(p0x * ex + p0y * ey) / (ex * ex + ey * ey), 0.0), 1.0)
+        qx, qy = p0x + along * ex, p0y + along * ey
+        clearance_sq = min(clearance_sq, qx**2 + qy**2)
+    return hit, math.sqrt(clearance_sq)
 
 
 @njit

@@ -82,7 +82,8 @@ def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int64]:
     Returns the accumulator, ``n_theta × n_rho``.
     """
     acc = np.empty((grid.n_theta, grid.n_rho), dtype=np.int64)
-    _vote_kernel(points, grid.half_trig32, grid.signed_cells, grid.margin_cells, acc)
+    _vote_kernel(np.ascontiguousarray(points, dtype=float), grid.half_trig32, grid.signed_cells,
+                 grid.margin_cells, acc)
     return acc
 
 
