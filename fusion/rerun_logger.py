@@ -83,6 +83,7 @@ WEB_PORT = 9090
 # chunks keep a long recording's memory flat.
 BATCH_SCANS = 2000
 BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
+IMAGE_BATCH = 100  # Hough images buffered at most (5 MB on a 3° × 10 cm grid)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
 PATH_PIECE = 50  # poses re-sent at every scan; older ones are re-sent ~log2(n / this) times
@@ -383,8 +384,8 @@ class RerunLogger:
     the recording.
 
     Per-scan data is buffered and sent in columns every ``BATCH_SCANS`` scans (or, when
-    serving, ``BATCH_SECONDS`` of wall time), and by :meth:`flush` / :meth:`close`; the Hough
-    image, the state log and the hypotheses are logged at once.
+    serving, ``BATCH_SECONDS`` of wall time), and by :meth:`flush` / :meth:`close` (the Hough
+    images also every ``IMAGE_BATCH``); the state log and the hypotheses are logged at once.
     """
 
     def __init__(self, path: str | Path | None = None, *, serve: bool = False,
@@ -424,6 +425,7 @@ class RerunLogger:
         self._batches: dict[str, _Batch] = {}
         self._styled: set[str] = set()
         self._batched_scans = 0
+        self._accumulator_entities: dict[tuple[int, int], str] = {}
         self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
@@ -692,15 +694,26 @@ class RerunLogger:
             if len(ends) else np.empty((0, 4), np.uint8))
 
     def _accumulator(self, t: float, index: int, votes: NDArray | None) -> None:
-        """The vote image, logged at once (batching images saves nothing: the cost is per pixel)."""
+        """The vote image, batched like the time series but sent every ``IMAGE_BATCH`` images
+        (one ``log`` of an image costs ~0.4 ms, a row of a batch ~40 µs). Its format is static
+        per entity: a grid of another shape (another sensor's settings) gets its own entity."""
         if votes is None:
             return
-        self._style_once("hough/accumulator", rr.DepthImage.from_fields(
-            meter=1.0, colormap="viridis", draw_order=0.0))
-        self._set_time(t, index)
-        # uint16 halves what is copied and sent; a cell gets at most one vote per point
-        image = votes.astype(np.uint16 if votes.max() < 65536 else np.uint32)
-        self.stream.log("hough/accumulator", rr.DepthImage(image))
+        # uint16 halves what is copied and sent; a cell gets at most one vote per point, and a
+        # scan of more than 65535 points is shown saturated
+        image = np.minimum(votes, 65535).astype(np.uint16)
+        h, w = image.shape
+        entity = self._accumulator_entities.setdefault(
+            (h, w), "hough/accumulator" if not self._accumulator_entities
+            else f"hough/accumulator/{h}x{w}")
+        batch = self._batches.get(entity)
+        if batch is None:  # the style once: building it costs more than the row
+            batch = self._batch(entity, rr.DepthImage, rr.DepthImage.from_fields(
+                format=rr.components.ImageFormat(width=w, height=h, channel_datatype="U16"),
+                meter=1.0, colormap="viridis", draw_order=0.0))
+        batch.add(t, index, 1, buffer=image.reshape(1, -1).view(np.uint8))
+        if len(batch.t) >= IMAGE_BATCH:
+            batch.send(self.stream, self._time_column)
 
     # ---------------------------------------------------------------- time series
     def _metrics(self, t: float, index: int, pose: NDArray, cov: NDArray, correction: Any,
