@@ -25,6 +25,7 @@ from fusion.events import MAX_POSE_COORDINATE
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
 from fusion.scan_odometry import ScanOdometry
+from fusion.scan_odometry import warm_up as warm_up_scan_matching
 from fusion.tracker import PoseTracker
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
@@ -114,6 +115,8 @@ class Localizer:
         self._scan_odometry_sensor = self.config.scan_odometry_sensor
         self.scan_odometry = (None if self._scan_odometry_sensor is None else
                               ScanOdometry(self.config.scan_odometry, self.tracker.motion))
+        if self.scan_odometry is not None:
+            warm_up_scan_matching()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
                                         make_tracker=self._tracker_at)
         self.logger.log_map(map)

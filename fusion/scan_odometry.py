@@ -30,10 +30,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.spatial import cKDTree
 
 from fusion.motion import OdometryMotionModel, WheelScale, increment
 from houghloc.geometry import compose, wrap_scalar
+from houghloc.jit import fma, njit
 from houghloc.matching import gate_threshold
 
 # The wheels' noise while they report no motion is zero; this floor (σ = 1 mm, 0.06°) keeps its
@@ -109,27 +109,36 @@ def scan_normals(points: NDArray[np.float64], max_gap: float, radius: float,
     beams are a centimetre or two apart: along a corridor's walls those tilts add up to
     information along the corridor that the walls do not give. Usable: at least three
     points in the neighbourhood."""
+    return _scan_normals(np.ascontiguousarray(points, dtype=float), max_gap, radius,
+                         half_window)
+
+
+@njit
+def _scan_normals(points: NDArray, max_gap: float, radius: float, half_window: int
+                  ) -> tuple[NDArray, NDArray]:
     n = len(points)
-    gap = np.r_[np.hypot(*np.diff(points, axis=0).T), np.inf]
-    jump = np.r_[0, np.cumsum(gap[:-1] > max_gap)]  # the object each point belongs to
-    moments = np.zeros((6, n))
-    for offset in range(-half_window, half_window + 1):
-        lo, hi = max(0, -offset), min(n, n - offset)
-        if lo >= hi:
-            continue
-        d = points[lo + offset:hi + offset] - points[lo:hi]
-        near = ((np.hypot(d[:, 0], d[:, 1]) <= radius)
-                & (jump[lo + offset:hi + offset] == jump[lo:hi]))
-        dx, dy = d[:, 0] * near, d[:, 1] * near  # each point once per offset: plain adds
-        moments[:, lo:hi] += (near, dx, dy, dx * dx, dx * dy, dy * dy)
-    count, sx, sy, sxx, sxy, syy = moments
-    safe = np.maximum(count, 1.0)
-    cxx = sxx / safe - (sx / safe) ** 2
-    cxy = sxy / safe - (sx / safe) * (sy / safe)
-    cyy = syy / safe - (sy / safe) ** 2
-    along = 0.5 * np.arctan2(2.0 * cxy, cxx - cyy)  # the major axis: the surface's direction
-    normals = np.column_stack((-np.sin(along), np.cos(along)))
-    return normals, count >= 3
+    jump = np.zeros(n, np.intp)  # the object each point belongs to
+    for i in range(1, n):
+        gap = math.hypot(points[i, 0] - points[i - 1, 0], points[i, 1] - points[i - 1, 1])
+        jump[i] = jump[i - 1] + (gap > max_gap)
+    normals = np.empty((n, 2))
+    usable = np.empty(n, np.bool_)
+    for i in range(n):
+        count = sx = sy = sxx = sxy = syy = 0.0
+        for j in range(max(0, i - half_window), min(n, i + half_window + 1)):
+            dx, dy = points[j, 0] - points[i, 0], points[j, 1] - points[i, 1]
+            if math.hypot(dx, dy) <= radius and jump[j] == jump[i]:
+                count += 1.0
+                sx, sy = sx + dx, sy + dy
+                sxx, sxy, syy = sxx + dx * dx, sxy + dx * dy, syy + dy * dy
+        safe = max(count, 1.0)
+        cxx = sxx / safe - (sx / safe) ** 2
+        cxy = sxy / safe - (sx / safe) * (sy / safe)
+        cyy = syy / safe - (sy / safe) ** 2
+        along = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)  # the major axis: the surface's direction
+        normals[i, 0], normals[i, 1] = -math.sin(along), math.cos(along)
+        usable[i] = count >= 3
+    return normals, usable
 
 
 def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64],
@@ -140,39 +149,109 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
     points pair. Cov = σ̂² (JᵀWJ)⁻¹, the Gauss–Newton covariance at the optimum."""
     if len(previous) < config.min_points or len(current) < config.min_points:
         return None
-    tree = cKDTree(previous)
-    normals, usable = scan_normals(previous, config.max_neighbour_gap,
-                                   config.normal_radius)
-    x = np.array(guess, dtype=float)
-    shrink = max(1.0, 0.6 * config.iterations)
-    for iteration in range(config.iterations):
+    previous = np.ascontiguousarray(previous, dtype=float)
+    normals, usable = scan_normals(previous, config.max_neighbour_gap, config.normal_radius)
+    found, x, hessian, sigma2, overlap = _icp(
+        previous, normals, usable, np.ascontiguousarray(current, dtype=float),
+        np.array(guess, dtype=float), config.iterations, config.max_pair_distance,
+        config.final_pair_distance, config.huber, config.min_points)
+    if not found:
+        return None
+    x[2] = wrap_scalar(x[2])
+    return IcpResult(x, sigma2 * np.linalg.inv(hessian), overlap)
+
+
+@njit
+def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
+         x: NDArray, iterations: int, max_pair: float, final_pair: float, huber: float,
+         min_points: int) -> tuple[bool, NDArray, NDArray, float, float]:
+    """The Gauss–Newton iterations of :func:`point_to_line_icp`: (found, x, JᵀWJ + damping,
+    σ̂², overlap). Nearest neighbours come from a grid of the previous scan with cells as wide
+    as the widest pairing distance, so a pair is always in one of the 3 × 3 cells around."""
+    index = _cell_index(previous, max(max_pair, final_pair))
+    n = len(current)
+    residual, weight = np.zeros(n), np.zeros(n)
+    hessian = np.eye(3)
+    shrink = max(1.0, 0.6 * iterations)
+    paired = 0
+    for iteration in range(iterations):
         progress = min(1.0, iteration / shrink)
-        reach = config.max_pair_distance + (config.final_pair_distance
-                                            - config.max_pair_distance) * progress
+        reach = max_pair + (final_pair - max_pair) * progress
         c, s = math.cos(x[2]), math.sin(x[2])
-        moved = current @ np.array([[c, s], [-s, c]]) + x[:2]
-        distance, nearest = tree.query(moved, distance_upper_bound=reach)
-        paired = np.isfinite(distance)
-        paired[paired] &= usable[nearest[paired]]
-        if paired.sum() < config.min_points:
-            return None
-        n, q = normals[nearest[paired]], moved[paired]
-        residual = np.einsum("ij,ij->i", n, q - previous[nearest[paired]])
-        arm = q - x[:2]  # ∂(R q)/∂θ = (−(Rq)_y, (Rq)_x)
-        jacobian = np.column_stack((n[:, 0], n[:, 1], n[:, 1] * arm[:, 0] - n[:, 0] * arm[:, 1]))
-        weight = 1.0 / np.maximum(1.0, np.abs(residual) / config.huber)
+        hessian = np.zeros((3, 3))
+        gradient = np.zeros(3)
+        paired = 0
+        for i in range(n):  # q = R(θ) cᵢ + t, as the matrix product [cᵢ]·[[c, s], [−s, c]]
+            qx = fma(current[i, 1], -s, current[i, 0] * c) + x[0]
+            qy = fma(current[i, 1], c, current[i, 0] * s) + x[1]
+            j = _nearest(previous, index, qx, qy, reach)
+            if j < 0 or not usable[j]:
+                residual[i] = weight[i] = 0.0
+                continue
+            paired += 1
+            nx, ny = normals[j, 0], normals[j, 1]
+            r = nx * (qx - previous[j, 0]) + ny * (qy - previous[j, 1])
+            ax, ay = qx - x[0], qy - x[1]  # ∂(R q)/∂θ = (−(Rq)_y, (Rq)_x)
+            jac = (nx, ny, ny * ax - nx * ay)
+            w = 1.0 / max(1.0, abs(r) / huber)
+            residual[i], weight[i] = r, w
+            for a in range(3):
+                gradient[a] += jac[a] * w * r
+                for b in range(3):
+                    hessian[a, b] += jac[a] * jac[b] * w
+        if paired < min_points:
+            return False, x, hessian, 0.0, 0.0
+        hessian += _DAMPING * np.eye(3)
         # damped: along a featureless corridor one direction has no information; the step
-        # leaves it alone and the covariance below calls it unknown (σ² ~ σ̂²/damping)
-        hessian = jacobian.T @ (jacobian * weight[:, None]) + _DAMPING * np.eye(3)
-        step = -np.linalg.solve(hessian, jacobian.T @ (weight * residual))
+        # leaves it alone and the covariance calls it unknown (σ² ~ σ̂²/damping)
+        step = -np.linalg.solve(hessian, gradient)
         x += step
         if np.abs(step).max() < 1e-5:
             break
-    x[2] = wrap_scalar(x[2])
-    dof = max(1, int(paired.sum()) - 3)
-    sigma2 = max(float(weight @ residual**2) / dof, 1e-6)
-    return IcpResult(x, sigma2 * np.linalg.inv(hessian), float(paired.mean()))
+    dof = max(1, paired - 3)
+    sigma2 = max((weight * residual**2).sum() / dof, 1e-6)
+    return True, x, hessian, sigma2, paired / n
 
+
+@njit
+def _cell_index(points: NDArray, cell: float) -> tuple:
+    """Points bucketed in square cells of side ``cell`` (a counting sort): the grid's origin,
+    1/cell, its width and height in cells, and ``start``, ``order`` such that
+    ``order[start[c]:start[c + 1]]`` are the points of cell c (row-major)."""
+    ox, oy = points[:, 0].min(), points[:, 1].min()
+    inv_cell = 1.0 / cell
+    nx = int((points[:, 0].max() - ox) * inv_cell) + 1
+    ny = int((points[:, 1].max() - oy) * inv_cell) + 1
+    of = np.empty(len(points), np.intp)
+    counts = np.zeros(nx * ny + 1, np.intp)
+    for k in range(len(points)):
+        of[k] = int((points[k, 1] - oy) * inv_cell) * nx + int((points[k, 0] - ox) * inv_cell)
+        counts[of[k] + 1] += 1
+    start = np.cumsum(counts)
+    fill = start[:-1].copy()
+    order = np.empty(len(points), np.intp)
+    for k in range(len(points)):
+        order[fill[of[k]]] = k
+        fill[of[k]] += 1
+    return ox, oy, inv_cell, nx, ny, start, order
+
+
+@njit
+def _nearest(points: NDArray, index: tuple, x: float, y: float, reach: float) -> int:
+    """The point of :func:`_cell_index` nearest (x, y) and closer than ``reach`` (at most the
+    cell's side: it lies in one of the 3 × 3 cells around), or −1."""
+    ox, oy, inv_cell, nx, ny, start, order = index
+    cx, cy = math.floor((x - ox) * inv_cell), math.floor((y - oy) * inv_cell)
+    best, best_d2 = -1, reach * reach
+    for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+        for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+            c = gy * nx + gx
+            for m in range(start[c], start[c + 1]):
+                k = order[m]
+                d2 = (points[k, 0] - x) ** 2 + (points[k, 1] - y) ** 2
+                if d2 < best_d2 or (d2 == best_d2 and 0 <= k < best):
+                    best, best_d2 = k, d2
+    return best
 
 
 @dataclass(frozen=True, slots=True)
@@ -340,3 +419,21 @@ class ScanOdometry:
         cov = np.linalg.inv(wheel_info + scan_info)
         cov = 0.5 * (cov + cov.T)
         return cov @ (wheel_info @ wheel_step + scan_info @ matched), cov
+
+
+_warmed_up = False
+
+
+def warm_up() -> None:
+    """Compile the matching kernels, or load them from the cache, before the first scan (once
+    per process): two views of a rectangular room, 5 cm and 1° apart, are aligned."""
+    global _warmed_up
+    if _warmed_up:
+        return
+    s = np.linspace(0.0, 1.0, 60, endpoint=False)[:, None]
+    corners = np.array([[-2.0, -1.5], [4.0, -1.5], [4.0, 2.5], [-2.0, 2.5]])
+    room = np.concatenate([a + s * (b - a) for a, b in zip(corners, np.roll(corners, -1, 0),
+                                                             strict=True)])
+    moved = (room - (0.05, 0.0)) @ np.array([[1.0, 0.0175], [-0.0175, 1.0]])
+    point_to_line_icp(room, moved, np.zeros(3), ScanOdometryConfig())
+    _warmed_up = True
