@@ -9,9 +9,12 @@ Ctrl-C, marked ``interrupted``).
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -96,6 +99,39 @@ class _Rows:
         return data
 
 
+@contextmanager
+def _signals_between_events() -> Iterator[Callable[[], None]]:
+    """While a run replays, SIGINT and SIGTERM take effect between two events, not inside one:
+    raised from a handler while compiled code is running (between a kernel's return and its
+    result's conversion), the exception is lost and a ``SystemError`` takes its place. The
+    signals whose handler is a Python function (Ctrl-C's, the CLI's SIGTERM) are recorded, and
+    the yielded check calls that handler at the next event."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: None  # only the main thread receives signals
+        return
+    received: list[tuple[int, Any]] = []
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    handlers = {sig: h for sig, h in handlers.items() if callable(h)}
+
+    def record(signum: int, frame: Any) -> None:
+        received.append((signum, frame))
+
+    def stop_if_signalled() -> None:
+        if received:
+            signum, frame = received.pop(0)
+            handlers[signum](signum, frame)
+
+    for sig in handlers:
+        signal.signal(sig, record)
+    try:
+        yield stop_if_signalled
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+        for signum, _ in received:  # came while the outputs were closed: delivered now
+            signal.raise_signal(signum)
+
+
 def replay(events: Iterable[Event], localizer: Localizer, *,
            trajectory_path: str | Path | None = None, progress: bool | None = None,
            description: str = "replay", keep: bool = True,
@@ -147,56 +183,59 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             record(t_out, pose, cov, est.status)
 
     started = time.perf_counter()
-    try:
-        for event in events:
-            n_events += 1
-            t0 = time.perf_counter()
-            if isinstance(event, Odometry):
-                localizer.on_odometry(event.t, event.x, event.y, event.theta,
-                                      event.unmeasured)
-                seconds["odometry"] += time.perf_counter() - t0
-                if pending:
-                    flush()
-                continue
-            if isinstance(event, Landmark):
-                localizer.on_landmark(event.t, event.label, event.bearing)
-                continue
-            if isinstance(event, Truth):
-                truth.append((event.t, event.x, event.y, event.theta))
-                localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
-                continue
-            if pending:  # a scan's pose is recorded by the next scan at the latest: odometry
-                flush(all_of_them=True)  # stamped behind the scans never covers them
-            cpu = time.process_time()
-            if isinstance(event, Scan):
-                est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
-                                        event.max_range)
-            elif isinstance(event, PointSet):
-                est = localizer.on_points(event.t, event.points, event.sensor)
-            else:
-                continue
-            seconds["scans"] += time.perf_counter() - t0
-            if time_scans:
-                scan_cpu.append(time.process_time() - cpu)
-            stamp = getattr(event, "stamp", None)  # a record's own (out-of-order) timestamp
-            t_est = est.t if stamp is None else stamp
-            n_scans += 1
-            first_t = t_est if first_t is None else first_t
-            last_t = t_est
-            newest = tracker.odometry_time
-            if pending or (newest is not None and est.t > newest):
-                pending.append((t_est, est.t, est))
-            else:
-                record(t_est, est.pose, est.cov, est.status)
-            bar.update()
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        flush(all_of_them=True)
-        bar.close()
-        if writer is not None:
-            writer.close()
-        localizer.logger.flush()
+    with _signals_between_events() as stop_if_signalled:
+        try:
+            for event in events:
+                stop_if_signalled()
+                n_events += 1
+                t0 = time.perf_counter()
+                if isinstance(event, Odometry):
+                    localizer.on_odometry(event.t, event.x, event.y, event.theta,
+                                          event.unmeasured)
+                    seconds["odometry"] += time.perf_counter() - t0
+                    if pending:
+                        flush()
+                    continue
+                if isinstance(event, Landmark):
+                    localizer.on_landmark(event.t, event.label, event.bearing)
+                    continue
+                if isinstance(event, Truth):
+                    truth.append((event.t, event.x, event.y, event.theta))
+                    localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
+                    continue
+                if pending:  # a scan's pose is recorded by the next scan at the latest: odometry
+                    flush(all_of_them=True)  # stamped behind the scans never covers them
+                cpu = time.process_time() if time_scans else 0.0
+                if isinstance(event, Scan):
+                    est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
+                                            event.max_range)
+                elif isinstance(event, PointSet):
+                    est = localizer.on_points(event.t, event.points, event.sensor)
+                else:
+                    continue
+                seconds["scans"] += time.perf_counter() - t0
+                if time_scans:
+                    scan_cpu.append(time.process_time() - cpu)
+                stamp = getattr(event, "stamp", None)  # a record's own (out-of-order) timestamp
+                t_est = est.t if stamp is None else stamp
+                n_scans += 1
+                first_t = t_est if first_t is None else first_t
+                last_t = t_est
+                newest = tracker.odometry_time
+                if pending or (newest is not None and est.t > newest):
+                    pending.append((t_est, est.t, est))
+                else:
+                    record(t_est, est.pose, est.cov, est.status)
+                bar.update()
+            stop_if_signalled()  # a signal that came in the last event
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            flush(all_of_them=True)
+            bar.close()
+            if writer is not None:
+                writer.close()
+            localizer.logger.flush()
     seconds["total"] = time.perf_counter() - started
     seconds.update(localizer.stats.seconds)
     table, truth_table = rows.array(), truth.array()
