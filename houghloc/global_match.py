@@ -662,8 +662,8 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
     """All poses (H×3) from observed pairs and the map pairs with the same angle between them.
 
     The window half-width is ``angle_tol_sigmas`` σ_δ + ``angle_tol_floor`` (capped), with
-    σ_δ² = var θ_i + var θ_k from the lines' covariance. The ragged candidate ranges are expanded
-    without a Python loop (repeat + arange). With ``near``, poses whose heading is outside it are
+    σ_δ² = var θ_i + var θ_k from the lines' covariance; the ragged candidate ranges are walked
+    by one compiled loop (:func:`_pair_poses`). With ``near``, poses whose heading is outside it are
     left out before their position is solved (a local search keeps a few percent of them); the
     budget still counts every candidate, so the poses kept are the same as without it.
     """
@@ -674,22 +674,42 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
     lo = np.searchsorted(index.delta, d_obs - tol, side="left")
     hi = np.searchsorted(index.delta, d_obs + tol, side="right")
     counts = _within_budget(hi - lo, config.max_pair_hypotheses)
-    which = np.repeat(np.arange(len(pair_i)), counts)
-    entry = lo[which] + np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    i, k = pair_i[which], pair_k[which]
-    # θ = β − θ_obs from either line; their circular mean
-    th_a = index.beta_a[entry] - lines.theta[i]
-    if near is not None:  # θ is within half the angle window of θ_a: a first cut on θ_a alone
-        turned = np.abs(wrap_angle(th_a - near.pose[2])) <= near.radius_theta + tol.max()
-        entry, i, k, th_a = entry[turned], i[turned], k[turned], th_a[turned]
-    th_b = index.beta_b[entry] - lines.theta[k]
-    theta = wrap_angle(th_a + 0.5 * wrap_angle(th_b - th_a))
-    if near is not None:
-        turned = np.abs(wrap_angle(theta - near.pose[2])) <= near.radius_theta
-        entry, i, k, theta = entry[turned], i[turned], k[turned], theta[turned]
-    rhs = np.stack((index.r_a[entry] - lines.rho[i], index.r_b[entry] - lines.rho[k]), -1)
-    xy = np.einsum("hij,hj->hi", index.n_inv[entry], rhs)
-    return np.column_stack((xy, theta))
+    use_near = near is not None
+    return _pair_poses(lines.theta, lines.rho, pair_i, pair_k, lo, counts, index.beta_a,
+                       index.beta_b, index.r_a, index.r_b, index.n_inv, use_near,
+                       near.pose[2] if use_near else 0.0,
+                       near.radius_theta if use_near else 0.0, float(tol.max()))
+
+
+@njit
+def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, lo: NDArray,
+                counts: NDArray, beta_a: NDArray, beta_b: NDArray, r_a: NDArray, r_b: NDArray,
+                n_inv: NDArray, use_near: bool, near_theta: float, near_radius: float,
+                tol_max: float) -> NDArray:
+    """The poses of :func:`pair_hypotheses`, ``counts[p]`` index entries from ``lo[p]`` for each
+    observed pair p: θ = β − θ_obs from either line, their circular mean; (x, y) = N⁻¹ (r − ρ).
+    With a neighbourhood, a pose whose heading is outside it is left out before its position is
+    solved (θ is within half the angle window of θ_a: a first cut on θ_a alone)."""
+    out = np.empty((counts.sum(), 3))
+    h = 0
+    for p in range(len(pair_i)):
+        i, k = pair_i[p], pair_k[p]
+        for e in range(lo[p], lo[p] + counts[p]):
+            th_a = beta_a[e] - theta[i]
+            if use_near and abs((th_a - near_theta + np.pi) % TWO_PI - np.pi) > (
+                    near_radius + tol_max):
+                continue
+            th_b = beta_b[e] - theta[k]
+            half = 0.5 * ((th_b - th_a + np.pi) % TWO_PI - np.pi)
+            th = (th_a + half + np.pi) % TWO_PI - np.pi
+            if use_near and abs((th - near_theta + np.pi) % TWO_PI - np.pi) > near_radius:
+                continue
+            rhs_a, rhs_b = r_a[e] - rho[i], r_b[e] - rho[k]
+            out[h, 0] = n_inv[e, 0, 0] * rhs_a + n_inv[e, 0, 1] * rhs_b
+            out[h, 1] = n_inv[e, 1, 0] * rhs_a + n_inv[e, 1, 1] * rhs_b
+            out[h, 2] = th
+            h += 1
+    return out[:h]
 
 
 def _within_budget(counts: NDArray[np.intp], budget: int) -> NDArray[np.intp]:

@@ -44,7 +44,8 @@ _warmed_up: float | None = None
 
 def warm_up() -> float:
     """Compile every kernel of the per-scan path, or load it from the cache, before the first
-    scan: one synthetic scan of a synthetic room is localized and scored. Once per process;
+    scan: one synthetic scan of a synthetic room is localized, matched globally and scored.
+    Once per process;
     returns the seconds it took (0 when already done).
 
     A kernel is compiled the first time it is called with new argument types; the kernels'
@@ -57,9 +58,10 @@ def warm_up() -> float:
 
     import numpy as np
 
+    from houghloc.config import HoughConfig
     from houghloc.geometry import ray_segment_distances
-    from houghloc.global_match import wall_distance
-    from houghloc.localize import localize_scan
+    from houghloc.global_match import Neighbourhood, global_match, wall_distance
+    from houghloc.localize import localize_scan, observe_lines
     from houghloc.segment_map import SegmentMap
 
     started = time.perf_counter()
@@ -74,6 +76,9 @@ def warm_up() -> float:
     guess = pose + np.array([0.05, -0.05, 0.02])
     localize_scan(points, room, guess)  # the default prior: a read-only array
     localize_scan(points, room, guess, pose_cov=np.diag([0.01, 0.01, 0.001]))
+    lines = observe_lines(points, HoughConfig())[2]
+    global_match(lines, points, room)
+    global_match(lines, points, room, near=Neighbourhood(pose, 1.0, 0.3))
     walls = wall_distance(room, ("wall",), 0.05)
     for smooth in (False, True):
         walls.at(pose[None, :], points[:, 0], points[:, 1], smooth)

@@ -52,8 +52,11 @@ def test_a_signal_mid_run_leaves_valid_outputs_and_exits_128_plus_its_number(
     out = tmp_path / "out"
     args = ["run", "--map", str(paths["map"]), "--log", str(paths["log"]), "--out", str(out),
             "--no-progress", "--initial-pose", *(str(v) for v in run.odom_truth[0].tolist())]
+    # a shell without job control starts background jobs with SIGINT ignored, and Python keeps
+    # it so: the run gets the default disposition, as in a terminal
     proc = subprocess.Popen([str(BIN / "houghloc"), *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while not ((out / "trajectory.tum").exists()
                and (out / "trajectory.tum").stat().st_size > 2000):
