@@ -9,11 +9,13 @@ Absolute times on a shared machine mean little; the ratios are measured in the s
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
 from benchmarks.common import (
     MAPS,
+    REPO,
     icp_alignment,
     opencv_voting,
     ray_scan,
@@ -26,6 +28,8 @@ from houghloc import HoughConfig, SegmentMap, localize_scan
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=15)
+    parser.add_argument("--plot", type=Path, default=REPO / "runs" / "bench" / "localize.png",
+                        help="where to draw the growth with points and map size (PNG)")
     args = parser.parse_args(argv)
     cfg = HoughConfig()
     field = SegmentMap.from_yaml(MAPS / "robocup.yaml")
@@ -67,11 +71,14 @@ def main(argv: list[str] | None = None) -> dict:
 
     print("2) growth with the number of points (same scene, denser beams)")
     base = None
+    growth: dict[str, list[tuple[int, float]]] = {"ours": [], "opencv": [], "map": []}
     for n in (100, 361, 1000, 3000, 10000):
         pts = ray_scan(field, poses[0], n, seed=1)
         t = time_interleaved({"ours": lambda p=pts: localize_scan(p, field, guesses[0], cfg),
                               "opencv": opencv_voting(pts)}, rounds=max(5, args.rounds // 3))
         base = base or t["ours"]
+        growth["ours"].append((n, t["ours"]))
+        growth["opencv"].append((n, t["opencv"]))
         print(f"   {n:6d} points: {t['ours'] * 1e3:7.3f} ms ({t['ours'] / base:5.2f}× of 100)"
               f"   opencv {t['opencv'] * 1e3:7.3f} ms   ratio {t['ours'] / t['opencv']:.2f}×")
 
@@ -89,11 +96,39 @@ def main(argv: list[str] | None = None) -> dict:
         t = time_interleaved({"ours": lambda b=big: localize_scan(pts, b, guess, cfg)},
                              rounds=max(5, args.rounds // 3))
         times[n] = t["ours"]
+        growth["map"].append((len(big), t["ours"]))
         print(f"   {len(big):6d} segments: {t['ours'] * 1e3:7.3f} ms")
     spread = max(times.values()) / min(times.values())
     results["map_size_spread"] = spread
-    print(f"   largest / smallest: {spread:.2f}×  (target ≤ 2×)")
+    print(f"   largest / smallest: {spread:.2f}×  (target ≤ 1.2×)")
+    _plot(growth, args.plot)
+    print(f"   plot: {args.plot}")
     return results
+
+
+def _plot(growth: dict[str, list[tuple[int, float]]], path: Path) -> None:
+    """Time per step against the scan's points and the map's segments, log–log."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+    for name, label in (("ours", "localize_scan"), ("opencv", "cv2.HoughLinesPointSet")):
+        n, t = zip(*growth[name], strict=True)
+        left.loglog(n, np.array(t) * 1e3, "o-", label=label)
+    n, t = zip(*growth["ours"], strict=True)
+    left.loglog(n, t[0] * 1e3 * np.array(n) / n[0], ":", color="grey", label="linear in points")
+    left.set(xlabel="points in the scan", ylabel="ms per scan", title="growth with the points")
+    left.legend()
+    n, t = zip(*growth["map"], strict=True)
+    right.semilogx(n, np.array(t) * 1e3, "o-", label="localize_scan, 361 points")
+    right.set(xlabel="segments in the map", ylabel="ms per scan", title="growth with the map",
+              ylim=(0, 1.5 * max(t) * 1e3))
+    right.legend()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from fusion.events import Odometry, PointSet, Scan, Truth
 from fusion.io import (
@@ -30,6 +32,7 @@ from fusion.io import (
     read_tum,
     write_tum,
 )
+from fusion.io.numbers import parse_floats
 from houghloc.geometry import compose, inverse, relative, wrap_angle
 
 DATA = Path("/work/shared/data")
@@ -653,3 +656,22 @@ def test_open_log_intel_mat():
     events, stats = open_log(INTEL_MAT)
     first = next(events)
     assert isinstance(first, Odometry) and stats.records == 1
+
+
+@settings(max_examples=300)
+@given(st.lists(st.floats(allow_nan=False, allow_infinity=False, width=64), min_size=1,
+                max_size=50),
+       st.sampled_from(["{!r}", "{:.3f}", "{:.6f}", "{:.2e}", "{:.17g}", "{:+.1f}"]))
+def test_a_records_numbers_parse_exactly_as_float_does(values, form):
+    """The compiled parser's fast path (≤ 15 digits, ≤ 10²²) and its fallback give float()'s
+    double, bit for bit, whatever way the numbers were written."""
+    tokens = [form.format(v) for v in values]
+    parsed = parse_floats(tokens)
+    expected = np.array([float(t) for t in tokens])
+    assert parsed.tobytes() == expected.tobytes()
+
+
+def test_a_non_numeric_range_is_named_not_misread():
+    with pytest.raises(ValueError, match=r"'1\.2\.3'"):
+        parse_floats(["1.5", "1.2.3"])
+    np.testing.assert_array_equal(parse_floats(["nan", "-inf", "7"]), [np.nan, -np.inf, 7.0])

@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 
 from fusion.events import MAX_POSE_COORDINATE, Event, Odometry, ReadStats, Scan, Truth
 from fusion.io.errors import LogError
+from fusion.io.numbers import parse_floats
 from fusion.io.textfile import open_text_log
 from houghloc.geometry import compose, relative
 
@@ -505,7 +506,7 @@ def _ranges(fields: list[str]) -> tuple[NDArray[np.float64], int]:
     """The ranges, with NaN and negative ones (invalid beams) made +inf, "no return", as the ROS
     reader does with NaN (REP 117); and how many there were."""
     try:
-        ranges = np.array(fields, dtype=float)
+        ranges = parse_floats(fields)
     except ValueError:
         raise _BadRecord("non-numeric range") from None
     invalid = np.isnan(ranges) | (ranges < 0)
