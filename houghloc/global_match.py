@@ -772,15 +772,6 @@ def _top(values: NDArray, m: int) -> NDArray[np.intp]:
 
 
 # ---------------------------------------------------------------------------- 3–4. scores
-def to_world(poses: NDArray, x: NDArray, y: NDArray) -> tuple[NDArray, NDArray]:
-    """Robot-frame coordinates (any shape S) at each pose: (H×S world x, H×S world y)."""
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    shape = (len(poses),) + (1,) * np.ndim(x)
-    c, s = c.reshape(shape), s.reshape(shape)
-    return (poses[:, 0].reshape(shape) + c * x - s * y,
-            poses[:, 1].reshape(shape) + s * x + c * y)
-
-
 def _chunks(n_rows: int, cost_per_row: int, budget: int = 2_000_000):
     step = max(1, budget // max(cost_per_row, 1))
     for start in range(0, n_rows, step):
@@ -932,18 +923,33 @@ def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[
     near = near[np.isin(map.kinds[near], kinds) & map.is_wall[near]]
     if len(near) == 0 or len(points) == 0:
         return np.ones(len(points), dtype=bool)
-    wx, wy = to_world(pose[None, :], points[:, 0], points[:, 1])
-    d = np.column_stack((wx[0] - pose[0], wy[0] - pose[1]))  # N×2
-    w = map.starts[near] - pose[:2]  # S×2
-    e = map.ends[near] - map.starts[near]
-    den = d[:, :1] * e[:, 1] - d[:, 1:] * e[:, 0]  # N×S
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (w[:, 0] * e[:, 1] - w[:, 1] * e[:, 0]) / den
-        u = (w[:, 0] * d[:, 1:] - w[:, 1] * d[:, :1]) / den
-    dist = np.hypot(d[:, 0], d[:, 1])
-    t_max = 1.0 - margin / np.maximum(dist, 1e-9)  # in units of the point's range
-    blocked = (np.abs(den) > 1e-12) & (t > 1e-6) & (t < t_max[:, None]) & (u >= 0) & (u <= 1)
-    return ~blocked.any(axis=1)
+    heading = np.array([pose[2]])  # NumPy's cos and sin, as every other placement of points
+    return _unoccluded(float(pose[0]), float(pose[1]), float(np.cos(heading)[0]),
+                       float(np.sin(heading)[0]), np.ascontiguousarray(points, dtype=float),
+                       map.starts[near], map.ends[near], margin)
+
+
+@njit
+def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, starts: NDArray,
+                ends: NDArray, margin: float) -> NDArray[np.bool_]:
+    """:func:`seen_directly` for the robot at (ox, oy) heading (c, s) = (cos θ, sin θ)."""
+    seen = np.ones(len(points), np.bool_)
+    for i in range(len(points)):
+        dx = ox + c * points[i, 0] - s * points[i, 1] - ox  # d = q − o, q in the world
+        dy = oy + s * points[i, 0] + c * points[i, 1] - oy
+        t_max = 1.0 - margin / max(math.hypot(dx, dy), 1e-9)  # in units of the point's range
+        for j in range(len(starts)):
+            wx, wy = starts[j, 0] - ox, starts[j, 1] - oy
+            ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
+            den = dx * ey - dy * ex
+            if abs(den) <= 1e-12:
+                continue
+            t = (wx * ey - wy * ex) / den
+            u = (wx * dy - wy * dx) / den
+            if t > 1e-6 and t < t_max and u >= 0 and u <= 1:
+                seen[i] = False
+                break
+    return seen
 
 
 def _valid(h: Hypothesis, config: GlobalMatchConfig) -> bool:
