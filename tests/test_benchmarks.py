@@ -34,10 +34,15 @@ def test_bench_fusion_every_section() -> None:
     assert "target ≥ 1000 scans/s" in out and "peak RSS growth" in out and "× peer" in out
 
 
-def test_bench_localize_and_global_and_rerun() -> None:
-    assert "cv2.HoughLinesPointSet" in _run("bench_localize", "--rounds", "1")
+def test_bench_localize_and_global_and_rerun(tmp_path: Path) -> None:
+    plot = tmp_path / "localize.png"
+    assert "cv2.HoughLinesPointSet" in _run("bench_localize", "--rounds", "1", "--plot",
+                                            str(plot))
+    assert plot.stat().st_size > 10_000  # two panels drawn
     assert "a copy of the true pose reported" in _run("bench_global", "--rounds", "1")
-    assert "% of off" in _run("bench_rerun", "--duration", "5", "--rounds", "1")
+    out = _run("bench_rerun", "--duration", "5", "--rounds", "1", "--intel-scans", "100")
+    assert "% of off" in out
+    assert ("Intel lab, 100 scans" in out) == DATA.is_dir(), out
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason=f"real logs not found at {DATA}")

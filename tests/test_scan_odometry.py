@@ -130,8 +130,9 @@ def test_range_noise_on_a_corridors_walls_says_nothing_along_it(seed: int) -> No
     """With 1 cm of range noise on beams 1-2 cm apart, normals taken from two neighbouring
     points tilt by tens of degrees, and a thousand tilted normals add up to information along
     the corridor that its walls do not give: the match would then be sure of a motion along it.
-    Normals fitted over each point's neighbourhood leave that direction open (σ along over
-    2.5 cm for a 5 cm step, ten times the σ across; with two-point normals: 4-5 mm, twice)."""
+    Normals fitted over each point's neighbourhood leave that direction open: over 400 draws σ
+    along is 2.6-5 cm for a 5 cm step (one draw in a few thousand 2.46 cm), at least ten times
+    the σ across; with two-point normals it is 4-5 mm, twice. The bounds sit between the two."""
     rng = np.random.default_rng(seed)
     start, motion = np.array([0.0, 0.2, 0.0]), np.array([0.05, 0.0, 0.0])
 
@@ -143,7 +144,7 @@ def test_range_noise_on_a_corridors_walls_says_nothing_along_it(seed: int) -> No
     result = point_to_line_icp(noisy(start), noisy(compose(start, motion)), motion, CONFIG)
     assert result is not None
     sigma = np.sqrt(np.diag(result.cov) * CONFIG.noise_scale)
-    assert sigma[0] > 0.025 and sigma[0] > 10 * sigma[1], sigma
+    assert sigma[0] > 0.015 and sigma[0] > 5 * sigma[1], sigma
 
 
 def test_scan_odometry_matches_the_first_laser_unless_told() -> None:
