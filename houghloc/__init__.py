@@ -1,4 +1,5 @@
-"""houghloc: self-localization by the Hough transform (Iocchi & Nardi), as pure NumPy functions.
+"""houghloc: self-localization by the Hough transform (Iocchi & Nardi), as pure functions (the
+per-scan steps compiled with Numba, see houghloc.jit).
 
     from houghloc import SegmentMap, HoughConfig, localize_scan
     m = SegmentMap.from_yaml("configs/maps/robocup.yaml")
