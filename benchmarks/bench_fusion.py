@@ -42,7 +42,7 @@ from fusion.evaluation import (
 from fusion.experiment import OutlierInjectingTracker, localize_simulated
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
 
-CONFIGS = REPO / "configs"
+CONFIGS = REPO / "fusion" / "configs"
 
 
 # ------------------------------------------------------------------------------------ helpers

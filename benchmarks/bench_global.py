@@ -1,6 +1,6 @@
 """Speed of global set matching (DESIGN §3.6) on office-large, and its growth with the map.
 
-Prints (1) one `global_match` on `configs/maps/office-large.yaml` from 360° of accumulated views
+Prints (1) one `global_match` on the packaged map `office-large` from 360° of accumulated views
 (median over poses; target ≤ 0.2 s), its success and the one-off cost of the per-map caches,
 (2) how it grows when office-large is tiled up to thousands of segments, with the numbers that
 explain the growth (map lines, angle-index entries, pose hypotheses), and (3) what the pruning buys

@@ -1,7 +1,7 @@
 """Localization on the real logs (Intel lab, Freiburg 079, ACES) end to end, without Rerun.
 
     python -m benchmarks.bench_real [--only intel|fr079|aces] [--scans N] [--set KEY=VALUE …]
-    python -m benchmarks.bench_real --build-maps [--only …]   # rebuild configs/maps + pictures
+    python -m benchmarks.bench_real --build-maps [--only …]   # rebuild the packaged maps + pictures
 
 For each dataset: houghloc (odometry + Hough fixes in the EKF) against the GMapping reference
 poses (ATE RMSE / max, lost = > 0.3 m or > 5°), the odometry alone (SE(2)-aligned to the
@@ -56,13 +56,14 @@ def datasets() -> list[Dataset]:
     from fusion.io import INTEL_TIME_OFFSET
 
     return [
-        Dataset("intel", DATA / "intel" / "scan_intel.mat", ROOT / "configs/maps/intel.yaml",
-                ROOT / "configs/intel-laser.yaml", DATA / "intel" / "intel.gfs.log",
+        Dataset("intel", DATA / "intel" / "scan_intel.mat", ROOT / "fusion/configs/maps/intel.yaml",
+                ROOT / "fusion/configs/intel-laser.yaml", DATA / "intel" / "intel.gfs.log",
                 DATA / "intel" / "intel.relations", INTEL_TIME_OFFSET, (0.0, 0.0, 0.0)),
         Dataset("fr079", DATA / "fr079" / "freiburg-079-corrected.log.gz",
-                ROOT / "configs/maps/fr079.yaml", ROOT / "configs/fr079-laser.yaml"),
-        Dataset("aces", DATA / "aces" / "aces-corrected.log.gz", ROOT / "configs/maps/aces.yaml",
-                ROOT / "configs/aces-laser.yaml"),
+                ROOT / "fusion/configs/maps/fr079.yaml", ROOT / "fusion/configs/fr079-laser.yaml"),
+        Dataset("aces", DATA / "aces" / "aces-corrected.log.gz",
+                ROOT / "fusion/configs/maps/aces.yaml",
+                ROOT / "fusion/configs/aces-laser.yaml"),
     ]
 
 
@@ -255,7 +256,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="override a setting of each dataset's config, e.g. "
                         "ambiguity.local_search_xy=0.75 (dotted key, YAML value; repeatable)")
     parser.add_argument("--build-maps", action="store_true",
-                        help="rebuild configs/maps/<name>.yaml and docs/images/map-<name>.png")
+                        help="rebuild fusion/configs/maps/<name>.yaml and "
+                        "docs/images/map-<name>.png")
     args = parser.parse_args(argv)
     if not DATA.is_dir():
         print(f"bench_real: skipped — the real datasets are not in {DATA}")
@@ -263,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.build_maps:
         for name in MAP_SOURCES:
             if not args.only or name in args.only:
-                m = build_real_map(name, ROOT / f"configs/maps/{name}.yaml",
+                m = build_real_map(name, ROOT / f"fusion/configs/maps/{name}.yaml",
                                    ROOT / f"docs/images/map-{name}.png")
                 print(f"{name}: {len(m)} segments on {m.n_lines} lines")
         return 0

@@ -18,7 +18,7 @@ from fusion.replay import replay
 from fusion.rerun_logger import RerunLogger
 from fusion.sim import scenario_preset, simulate
 
-CONFIG = Path(__file__).resolve().parents[1] / "configs" / "office-laser.yaml"
+CONFIG = Path(__file__).resolve().parents[1] / "fusion" / "configs" / "office-laser.yaml"
 
 
 def replay_rate(run, events, logger=None) -> float:

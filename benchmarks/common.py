@@ -14,7 +14,7 @@ from houghloc import SegmentMap
 from houghloc.geometry import ray_segment_distances
 
 REPO = Path(__file__).resolve().parents[1]
-MAPS = REPO / "configs" / "maps"
+MAPS = REPO / "fusion" / "configs" / "maps"
 
 
 def time_interleaved(funcs: dict[str, Callable[[], object]], rounds: int = 15,

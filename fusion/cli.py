@@ -6,6 +6,7 @@
     houghloc eval --est EST.tum --gt GT.tum [--relations FILE --time-offset S]
     houghloc map build (--log CORRECTED_LOG | --grid ROS_MAP.yaml) --out MAP.yaml
     houghloc sweep --spec SPEC.yaml --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
+    houghloc ros2 --map M [--config C] [--initial-pose X Y THETA] [--ros-args ...]
 """
 
 from __future__ import annotations
@@ -67,10 +68,20 @@ class _Stop:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    ros_args: list[str] = []
+    if "--ros-args" in argv:  # ROS's own arguments (remappings, parameters) go to rclpy
+        argv, ros_args = argv[:argv.index("--ros-args")], argv[argv.index("--ros-args"):]
     args = parser.parse_args(argv)
+    if ros_args and args.command != "ros2":
+        parser.error("--ros-args is for `houghloc ros2`")
+    args.ros_args = ros_args
     logging.basicConfig(level=logging.WARNING, format="houghloc: warning: %(message)s")
     logging.captureWarnings(True)
     warnings.simplefilter("default")
+    # other packages' deprecations are theirs to fix, not the user's to read
+    warnings.filterwarnings("ignore", category=DeprecationWarning)
+    warnings.filterwarnings("default", category=DeprecationWarning, module=r"(fusion|houghloc)\b")
     _Stop.signal = signal.SIGINT
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _Stop.on_terminate)
@@ -84,6 +95,15 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"houghloc: error: {_describe(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("houghloc")
+    except PackageNotFoundError:
+        return "0+unknown"
 
 
 def _describe(exc: Exception) -> str:
@@ -105,6 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Mobile-robot self-localization by the Hough transform, fused with wheel "
                     "odometry in an EKF.")
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
+    parser.add_argument("--version", action="version", version=f"houghloc {_version()}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     demo = sub.add_parser("demo", help="simulate the paper's RoboCup scenario and localize it",
@@ -122,13 +143,21 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Localize a log (CARMEN .log/.gz, Intel .mat, ROS bag, or a "
                          "`houghloc sim` directory). Writes DIR/trajectory.tum (one TUM line per "
                          "scan), DIR/metrics.json and DIR/run.rrd.")
-    run.add_argument("--map", required=True, type=Path, help="segment map YAML")
+    run.add_argument("--map", required=True, type=Path,
+                     help="segment map YAML, or a packaged map's name (e.g. office)")
     run.add_argument("--log", required=True, type=Path, help="the log to replay")
     run.add_argument("--out", required=True, type=Path, help="output directory")
-    run.add_argument("--config", type=Path, help="localizer YAML (default: 2D laser + odometry)")
+    run.add_argument("--config", type=Path,
+                     help="localizer YAML, a packaged config's name (e.g. intel-laser), or an "
+                          "earlier run's metrics.json (default: 2D laser + odometry)")
     run.add_argument("--initial-pose", nargs=3, type=float, metavar=("X", "Y", "THETA"),
                      help="the pose at the log's first scan, in the map (m, m, rad; odometry "
-                     "before that scan is skipped); without it: global localization")
+                     "before that scan is skipped); default: the config's initial_pose, else "
+                     "global localization")
+    run.add_argument("--scan-topic", metavar="TOPIC",
+                     help="ROS bags: the LaserScan topic (default /scan, else the only one)")
+    run.add_argument("--odom-topic", metavar="TOPIC",
+                     help="ROS bags: the Odometry topic (default /odom, else the only one)")
     run.add_argument("--gt", type=Path, help="ground truth (TUM) for errors in metrics.json")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--strict", action="store_true",
@@ -181,6 +210,25 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--no-progress", action="store_true", help="no progress bar")
     sw.set_defaults(func=cmd_sweep)
 
+    ros2 = sub.add_parser(
+        "ros2", help="run the ROS 2 node (pip install 'houghloc[ros2]')",
+        description="Localize on a robot: subscribe scan, odom, initialpose and /tf_static; "
+        "publish houghloc/pose (PoseWithCovarianceStamped, as amcl_pose), map -> odom on /tf and "
+        "houghloc/state. ROS arguments follow --ros-args, e.g. --ros-args -r scan:=/base_scan "
+        "-p base_frame:=base_link (parameters: map_frame, odom_frame, base_frame, scan_topic, "
+        "odom_topic, publish_tf, transform_tolerance, odom_wait).")
+    ros2.add_argument("--map", required=True, type=Path,
+                      help="segment map YAML, or a packaged map's name")
+    ros2.add_argument("--config", type=Path,
+                      help="localizer YAML or a packaged config's name (default: the defaults)")
+    ros2.add_argument("--initial-pose", nargs=3, type=float, metavar=("X", "Y", "THETA"),
+                      help="start here (default: the config's initial_pose, else global "
+                           "localization until /initialpose)")
+    ros2.add_argument("--rrd", type=Path, help="also record the run to this Rerun file")
+    ros2.add_argument("--serve", action="store_true",
+                      help="also serve the Rerun web viewer on localhost")
+    ros2.set_defaults(func=cmd_ros2)
+
     mp = sub.add_parser("map", help="segment maps").add_subparsers(dest="map_command",
                                                                    required=True)
     build = mp.add_parser("build", help="build a segment map from a corrected log or a grid",
@@ -205,20 +253,24 @@ def _recording_options(p: argparse.ArgumentParser) -> None:
 
 # ------------------------------------------------------------------------------------- commands
 def cmd_run(args: argparse.Namespace) -> int:
+    from fusion.config import LocalizerConfig
     from fusion.evaluation import Trajectory
     from fusion.localizer import Localizer
     from fusion.replay import metrics_document, replay, write_metrics
+    from fusion.resources import find_map
     from houghloc import SegmentMap
 
-    segment_map = SegmentMap.from_yaml(args.map)
-    events, read_stats, sim_gt = _open_log(args.log)
-    if args.initial_pose is not None:
+    config = LocalizerConfig.from_yaml(args.config)
+    segment_map = SegmentMap.from_yaml(find_map(args.map))
+    events, read_stats, sim_gt, config = _open_log(args, config)
+    initial_pose = args.initial_pose if args.initial_pose is not None else config.initial_pose
+    if initial_pose is not None:
         from fusion.io import from_first_scan
 
         events = from_first_scan(events)
     gt_path = args.gt or sim_gt
     reference = Trajectory.from_tum(gt_path) if gt_path else None
-    if args.initial_pose is not None and not all(math.isfinite(v) for v in args.initial_pose):
+    if initial_pose is not None and not all(math.isfinite(v) for v in initial_pose):
         raise CliError("--initial-pose must be three finite numbers")
     args.out.mkdir(parents=True, exist_ok=True)
     logger = _make_logger(args, args.out / "run.rrd")
@@ -231,7 +283,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         truth = (Truth(float(t), *map(float, pose))
                  for t, pose in zip(reference.t, reference.poses, strict=True))
         events = merge_by_time([events, truth])
-    loc = Localizer.from_config(args.config, segment_map, args.initial_pose, logger)
+    loc = Localizer(segment_map, config, initial_pose, logger)
     result = replay(events, loc, trajectory_path=args.out / "trajectory.tum",
                     progress=False if args.no_progress else None, description=args.log.name,
                     keep=reference is not None)
@@ -264,6 +316,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from fusion.evaluation import Trajectory
     from fusion.localizer import Localizer
     from fusion.replay import accuracy, metrics_document, replay, write_metrics
+    from fusion.resources import find_config
     from fusion.sim import scenario_preset, simulate, write_run
 
     print(f"Simulating the RoboCup field: {args.duration:.0f} s, a laser robot among three "
@@ -273,9 +326,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     write_run(run, args.out / "sim")
     truth = Trajectory(run.truth_t, run.truth)
     logger = _make_logger(args, args.out / "run.rrd")
-    config = Path(__file__).resolve().parents[1] / "configs" / "robocup-laser.yaml"
-    loc = Localizer.from_config(config if config.exists() else None, run.map,
-                                run.odom_truth[0], logger)  # the kick-off pose is known
+    loc = Localizer.from_config(find_config("robocup-laser"), run.map, run.odom_truth[0],
+                                logger)  # the kick-off pose is known
     result = replay(run.events(), loc, trajectory_path=args.out / "trajectory.tum",
                     description="localizing")
     odometry_only = Trajectory(run.odom_t, run.odom_in_map())
@@ -377,6 +429,34 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_ros2(args: argparse.Namespace) -> int:
+    from fusion.config import LocalizerConfig
+    from fusion.resources import find_map
+    from houghloc import SegmentMap
+
+    try:
+        from fusion.ros2.node import run_node
+    except ImportError as exc:
+        raise CliError(f"the ROS 2 node needs the ros2 extra: pip install 'houghloc[ros2]' "
+                       f"({exc})") from None
+    config = LocalizerConfig.from_yaml(args.config)
+    segment_map = SegmentMap.from_yaml(find_map(args.map))
+    initial_pose = args.initial_pose if args.initial_pose is not None else config.initial_pose
+    if initial_pose is not None and not all(math.isfinite(v) for v in initial_pose):
+        raise CliError("--initial-pose must be three finite numbers")
+    logger: Any = NullLogger()
+    if args.rrd is not None or args.serve:
+        from fusion.rerun_logger import RerunLogger
+
+        logger = RerunLogger(args.rrd, serve=args.serve)
+    try:
+        return run_node(segment_map, config,
+                        None if initial_pose is None else np.asarray(initial_pose, float),
+                        logger, args.ros_args)
+    finally:
+        logger.close()
+
+
 def cmd_map_build(args: argparse.Namespace) -> int:
     try:
         from fusion.mapping import build_map
@@ -389,13 +469,30 @@ def cmd_map_build(args: argparse.Namespace) -> int:
 
 
 # -------------------------------------------------------------------------------------- helpers
-def _open_log(path: Path) -> tuple[Any, Any, Path | None]:
-    """Events, read statistics, and the ground truth a simulator directory carries."""
-    from fusion.io import open_log
+def _open_log(args: argparse.Namespace, config: Any) -> tuple[Any, Any, Path | None, Any]:
+    """Events, read statistics, the ground truth a simulator directory carries, and the
+    configuration with what the log says of the sensor (a ROS bag's ``/tf_static`` mount)."""
+    from fusion.io import StrayStampFilter, is_rosbag, open_log, read_rosbag
 
-    sim_gt = path / "gt.tum" if path.is_dir() and (path / "gt.tum").exists() else None
-    events, stats = open_log(path)
-    return events, stats, sim_gt
+    path = args.log
+    if not is_rosbag(path):
+        if args.scan_topic or args.odom_topic:
+            raise CliError(f"--scan-topic and --odom-topic are for ROS bags; {path} is not one")
+        sim_gt = path / "gt.tum" if path.is_dir() and (path / "gt.tum").exists() else None
+        events, stats = open_log(path)
+        return events, stats, sim_gt, config
+    if config.laser is None:
+        raise CliError("a ROS bag's LaserScan needs a laser sensor in the config")
+    bag = read_rosbag(path, scan_topic=args.scan_topic, odometry_topic=args.odom_topic,
+                      sensor=config.laser)
+    scan_topic, odometry_topic = bag.topics()
+    mount = bag.sensor_mount()
+    print(f"{path}: scans from {scan_topic}, odometry from {odometry_topic or 'nowhere'}; "
+          + ("laser mount from /tf_static: x {:.3f} m, y {:.3f} m, θ {:.4f} rad".format(*mount)
+             if mount is not None else "no /tf_static mount: the config's"))
+    if mount is not None:
+        config = config.with_mount(config.laser, mount)
+    return iter(StrayStampFilter(iter(bag), bag.stats, name=str(path))), bag.stats, None, config
 
 
 def _make_logger(args: argparse.Namespace, path: Path):

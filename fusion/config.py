@@ -17,9 +17,13 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from fusion.ambiguity import AmbiguityConfig
 from fusion.motion import OdometryMotionConfig
+from fusion.resources import find_config
 from fusion.scan_odometry import ScanOdometryConfig
 from houghloc import HoughConfig
 from houghloc.yaml_io import read_yaml, validated
+
+METRICS_VERSION_KEY = "houghloc_version"
+"""The key that marks a ``metrics.json`` (which also holds its run's ``config``)."""
 
 
 class ConfigError(ValueError):
@@ -77,6 +81,9 @@ class LocalizerConfig(_Strict):
     filter: FilterConfig = FilterConfig()
     ambiguity: AmbiguityConfig = AmbiguityConfig()
     scan_odometry: ScanOdometryConfig = ScanOdometryConfig()
+    initial_pose: tuple[float, float, float] | None = Field(
+        None, description="m, m, rad: the pose at the first scan, in the map; none means global "
+        "localization (an initial pose given to the Localizer or on the command line wins)")
 
     @model_validator(mode="after")
     def _scan_odometry_sensor_known(self) -> LocalizerConfig:
@@ -95,15 +102,39 @@ class LocalizerConfig(_Strict):
             return None
         if so.sensor is not None:
             return so.sensor
-        return next((name for name, s in self.sensors.items() if s.kind == "laser"), None)
+        return self.laser
 
     @classmethod
     def from_yaml(cls, path: str | Path | None) -> LocalizerConfig:
-        """Defaults overlaid with the file's values; ``None`` gives the defaults."""
+        """Defaults overlaid with the file's values; ``None`` gives the defaults.
+
+        ``path`` may name a packaged configuration (``office-laser``: :mod:`fusion.resources`),
+        or be the ``metrics.json`` of an earlier run, whose ``config`` (the whole effective
+        configuration, initial pose included) is read: the run is reproduced."""
         if path is None:
             return cls()
-        path = Path(path)
-        return cls.from_dict(read_yaml(path, ConfigError, "config") or {}, source=str(path))
+        path = find_config(path)
+        raw = read_yaml(path, ConfigError, "config") or {}
+        if isinstance(raw, dict) and METRICS_VERSION_KEY in raw and "config" in raw:
+            raw = raw["config"]
+        return cls.from_dict(raw, source=str(path))
+
+    @property
+    def laser(self) -> str | None:
+        """The first laser sensor's name (what a ROS bag's scans feed), None without one."""
+        return next((name for name, s in self.sensors.items() if s.kind == "laser"), None)
+
+    def with_mount(self, sensor: str, mount: tuple[float, float, float]) -> LocalizerConfig:
+        """This configuration with ``sensor`` mounted at ``mount`` (validated again: the
+        Hough grid's reach depends on the mount)."""
+        raw = self.as_dict()
+        raw["sensors"][sensor]["mount"] = list(mount)  # type: ignore[index]
+        return type(self).from_dict(raw, source=f"mount of {sensor}")
+
+    def as_dict(self) -> dict[str, object]:
+        """Every setting, defaults included, as plain YAML/JSON values: what ``from_dict``
+        reads back to the same configuration."""
+        return self.model_dump(mode="json")
 
     @classmethod
     def from_dict(cls, raw: object, source: str = "<dict>") -> LocalizerConfig:

@@ -105,7 +105,11 @@ class Localizer:
         self.logger = logger or NullLogger()
         warm_up()  # the compiled kernels, before the first scan rather than on it
         fc = self.config.filter
+        if initial_pose is None:
+            initial_pose = self.config.initial_pose
         pose = np.zeros(3) if initial_pose is None else np.asarray(initial_pose, dtype=float)
+        # the pose the run started from (None: global localization), for metrics.json
+        self.initial_pose = None if initial_pose is None else pose.copy()
         if initial_pose is not None:
             self._check_initial_pose(pose)
         self.tracker = PoseTracker.from_config(fc, pose)

@@ -23,11 +23,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
+from fusion.config import METRICS_VERSION_KEY
 from fusion.evaluation import ATE, ATEResult, LostFraction, NEESResult, Trajectory, chi2_band, nees
 from fusion.events import Event, Landmark, Odometry, PointSet, ReadStats, Scan, Truth
 from fusion.io.files import atomic_write_json
 from fusion.io.tum import TumWriter
 from fusion.localizer import Estimate, Localizer
+from houghloc import __version__
 
 
 @dataclass
@@ -280,7 +282,12 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
     stats = localizer.stats
     counts = localizer.tracker.counts
     n = result.scans
+    config = localizer.config.as_dict()
+    start = localizer.initial_pose
+    config["initial_pose"] = None if start is None else [float(v) for v in start]
     doc: dict[str, Any] = {
+        METRICS_VERSION_KEY: __version__,
+        "initial_pose": config["initial_pose"],
         "scans": n,
         "events": result.events,
         "interrupted": result.interrupted,
@@ -322,6 +329,7 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
     doc.update(accuracy(result, reference))
     if extra:
         doc.update(extra)
+    doc["config"] = config  # last: the long part, and what `--config metrics.json` reads back
     return doc
 
 

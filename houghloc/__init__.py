@@ -2,17 +2,33 @@
 per-scan steps compiled with Numba, see houghloc.jit).
 
     from houghloc import SegmentMap, HoughConfig, localize_scan
-    m = SegmentMap.from_yaml("configs/maps/robocup.yaml")
+    m = SegmentMap.from_yaml("fusion/configs/maps/robocup.yaml")
     c = localize_scan(points_xy, m, guess=(x, y, theta), config=HoughConfig())
     c.pose, c.delta, c.cov, c.rank, c.matches
 """
+
+from importlib.metadata import PackageNotFoundError, version
 
 from houghloc.config import HoughConfig
 from houghloc.global_match import GlobalMatchConfig, GlobalResult, Hypothesis, global_match
 from houghloc.localize import ScanCorrection, localize_scan, observe_lines
 from houghloc.segment_map import MapError, References, SegmentMap
 
-__all__ = ["GlobalMatchConfig", "GlobalResult", "HoughConfig", "Hypothesis", "MapError",
-           "References", "ScanCorrection", "SegmentMap", "global_match", "localize_scan",
-           "observe_lines"]
-__version__ = "0.1.0"
+__all__ = [
+    "GlobalMatchConfig",
+    "GlobalResult",
+    "HoughConfig",
+    "Hypothesis",
+    "MapError",
+    "References",
+    "ScanCorrection",
+    "SegmentMap",
+    "__version__",
+    "global_match",
+    "localize_scan",
+    "observe_lines",
+]
+try:
+    __version__ = version("houghloc")
+except PackageNotFoundError:  # a source tree that was never installed
+    __version__ = "0+unknown"

@@ -24,7 +24,7 @@ def find_repo_root(start: str | Path | None = None) -> Path:
 
 
 REPO_ROOT = find_repo_root()
-CONFIGS = REPO_ROOT / "configs"
+CONFIGS = REPO_ROOT / "fusion" / "configs"
 FIGURES_DIR = REPO_ROOT / "docs" / "images"
 SAVE_FIGURES = os.environ.get("SAVE_FIGURES", "") == "1"
 """``SAVE_FIGURES=1`` in the environment writes the README pictures to ``docs/images/``."""

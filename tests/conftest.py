@@ -16,7 +16,7 @@ settings.register_profile("ci", derandomize=True, deadline=None)
 settings.load_profile("ci" if os.environ.get("CI") else "default")
 
 REPO = Path(__file__).resolve().parents[1]
-MAPS = REPO / "configs" / "maps"
+MAPS = REPO / "fusion" / "configs" / "maps"
 DATA = REPO.parent / "shared" / "data"
 
 

@@ -26,8 +26,8 @@ from fusion.sim.run import interpolate_poses
 from houghloc import localize_scan
 from tests.conftest import REPO
 
-CAMERA = REPO / "configs" / "robocup-camera.yaml"
-OFFICE = REPO / "configs" / "office-laser.yaml"
+CAMERA = REPO / "fusion" / "configs" / "robocup-camera.yaml"
+OFFICE = REPO / "fusion" / "configs" / "office-laser.yaml"
 
 # The manager's rules before hypotheses were followed (the score, tie, prior and misfit rules,
 # opt-in since): give up tracking after five unusable scans or when σ passes half the spacing

@@ -57,7 +57,7 @@ def test_bench_real_on_short_slices() -> None:
 def test_bench_real_overrides_settings_of_the_datasets_configs() -> None:
     from benchmarks.bench_real import overridden_config
 
-    base = REPO / "configs/fr079-laser.yaml"
+    base = REPO / "fusion/configs/fr079-laser.yaml"
     assert overridden_config(base, []) == base
     config = overridden_config(base, ["scan_odometry.enabled=false",
                                       "ambiguity.local_search_xy=0.75"])

@@ -321,3 +321,60 @@ def test_sim_names_the_scenario_file_and_its_problem(content: str | None, proble
     assert code == 2
     assert f"scenario {scenario}: {problem}" in err and "Traceback" not in err
     assert not (tmp_path / "out").exists()
+
+
+# ------------------------------------------------------------------ reproducing a run, version
+def test_version_is_the_installed_packages(capsys: pytest.CaptureFixture[str]) -> None:
+    from importlib.metadata import version
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0
+    assert capsys.readouterr().out == f"houghloc {version('houghloc')}\n"
+
+
+def test_metrics_record_what_reproduces_the_run(clean_log: CleanLog, tmp_path: Path) -> None:
+    """metrics.json holds the version, the whole effective config and the initial pose; given
+    back as --config (nothing else but the map and log), it gives the same trajectory. A
+    config's initial_pose starts a run as --initial-pose does."""
+    from importlib.metadata import version
+
+    log_path = write_log(tmp_path / "run.log", clean_log.lines)
+    config = tmp_path / "start.yaml"
+    config.write_text(f"initial_pose: {list(clean_log.start_pose)}\n"
+                      "filter: {motion: {alpha1: 0.07}}\n")
+    first = tmp_path / "first"
+    assert main(["run", "--map", str(clean_log.map_path), "--log", str(log_path), "--out",
+                 str(first), "--config", str(config), "--gt", str(clean_log.gt_path),
+                 "--no-rerun", "--no-progress"]) == 0
+    metrics = check_outputs(first, len(clean_log.record_indices("ROBOTLASER1")))
+    assert metrics["houghloc_version"] == version("houghloc")
+    assert metrics["initial_pose"] == pytest.approx(list(clean_log.start_pose))
+    assert metrics["config"]["filter"]["motion"]["alpha1"] == 0.07
+    assert metrics["config"]["ambiguity"] and metrics["config"]["sensors"]["laser"]["hough"]
+    again = tmp_path / "again"
+    assert main(["run", "--map", str(clean_log.map_path), "--log", str(log_path), "--out",
+                 str(again), "--config", str(first / "metrics.json"), "--no-rerun",
+                 "--no-progress"]) == 0
+    np.testing.assert_array_equal(read_complete_trajectory(again / "trajectory.tum"),
+                                  read_complete_trajectory(first / "trajectory.tum"))
+    global_start = tmp_path / "global"  # the same config without its pose: not the same run
+    config.write_text("filter: {motion: {alpha1: 0.07}}\n")
+    assert main(["run", "--map", str(clean_log.map_path), "--log", str(log_path), "--out",
+                 str(global_start), "--config", str(config), "--no-rerun", "--no-progress"]) == 0
+    assert json.loads((global_start / "metrics.json").read_text())["initial_pose"] is None
+
+
+def test_packaged_configs_and_maps_are_found_by_name(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    from fusion.config import LocalizerConfig
+    from fusion.resources import configs_dir, find_config, find_map, maps_dir, packaged_names
+
+    assert {"office-laser", "robocup-laser", "intel-laser"} <= set(packaged_names(configs_dir()))
+    assert find_map("office") == maps_dir() / "office.yaml"
+    assert find_config("office-laser.yaml") == configs_dir() / "office-laser.yaml"
+    assert LocalizerConfig.from_yaml("intel-laser").sensors["laser"].max_range == 20.0
+    assert find_map(tmp_path / "office") == tmp_path / "office"  # a path stays a path
+    assert main(["run", "--map", "no-such-map", "--log", str(tmp_path), "--out",
+                 str(tmp_path / "o"), "--no-rerun"]) == 2
+    assert "no-such-map" in capsys.readouterr().err

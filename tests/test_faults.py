@@ -86,7 +86,7 @@ def test_the_summary_counts_scans_without_ground_truth(office, tmp_path, capsys)
 
 def test_a_run_that_ends_lost_says_so_and_strict_fails_it(office, tmp_path, capsys):
     """The office log in the RoboCup map: nothing fits."""
-    robocup = Path(__file__).resolve().parents[1] / "configs" / "maps" / "robocup.yaml"
+    robocup = Path(__file__).resolve().parents[1] / "fusion" / "configs" / "maps" / "robocup.yaml"
     args = ["run", "--map", str(robocup), "--log", str(office["log"]), "--no-rerun",
             "--no-progress"]
     assert main([*args, "--out", str(tmp_path / "a")]) == 0

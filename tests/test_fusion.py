@@ -30,7 +30,7 @@ from fusion.replay import replay
 from fusion.sim import SimRun, scenario_preset, simulate, write_run
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIGS = REPO / "configs"
+CONFIGS = REPO / "fusion" / "configs"
 SHORT = 60.0  # seconds: the default suite's runs
 FULL = 300.0  # the five-minute runs
 

@@ -546,7 +546,7 @@ def _check_bag_events(events):
     assert (odometry[1].x, odometry[1].y) == (1.0, 2.0)
     assert odometry[1].theta == pytest.approx(2.5)
     np.testing.assert_allclose(scans[0].angles, [-1.0, -0.5, 0.0, 0.5, 1.0])
-    assert scans[0].max_range == 30.0 and scans[0].sensor == "/scan"
+    assert scans[0].max_range == 30.0 and scans[0].sensor == "laser"
     assert scans[0].ranges[0] == 1.0 and scans[0].ranges[1] >= scans[0].max_range
     assert np.isinf(scans[0].ranges[2:4]).all()  # NaN and below range_min: no return
 

@@ -54,7 +54,7 @@ def perturbed(pose: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 def test_accuracy_ten_times_finer_than_the_grid_in_crowds(request, map_name, radius) -> None:
     m = request.getfixturevalue(map_name)
     # the scenario's description of its world: exact walls, a RoboCup field's short goal sides
-    scenario = LocalizerConfig.from_yaml(REPO / "configs" / f"{map_name}-laser.yaml")
+    scenario = LocalizerConfig.from_yaml(REPO / "fusion" / "configs" / f"{map_name}-laser.yaml")
     hough = scenario.sensors["laser"].hough
     rng = np.random.default_rng(2024)
     pos_err, head_err, flagged, fractions = [], [], [], []

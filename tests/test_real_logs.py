@@ -1,8 +1,8 @@
 """Localization on short slices of the real logs, against the GMapping reference poses.
 
 Skipped when ../shared/data is missing. The figures asserted are what houghloc's defaults reach
-(configs/intel-laser.yaml, configs/fr079-laser.yaml and configs/aces-laser.yaml only describe
-each laser) with the maps of configs/maps on these slices, with a margin; the whole logs are in
+(fusion/configs/{intel,fr079,aces}-laser.yaml only describe each laser) with the maps of
+fusion/configs/maps on these slices, with a margin; the whole logs are in
 ``python -m benchmarks.bench_real``.
 """
 

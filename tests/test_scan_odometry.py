@@ -22,7 +22,7 @@ from fusion.tracker import PoseTracker
 from houghloc.geometry import compose, ranges_to_points, ray_segment_distances
 
 CONFIG = ScanOdometryConfig(enabled=True)
-# wheels as good as the simulated robot's (configs/office-laser.yaml): σ ≈ 2 cm over 0.2 m
+# wheels as good as the simulated robot's (fusion/configs/office-laser.yaml): σ ≈ 2 cm over 0.2 m
 WHEELS = OdometryMotionConfig(alpha1=0.05, alpha2=0.01, alpha3=0.05, alpha4=0.01,
                               floor_xy=0.003, floor_theta=0.003)
 ANGLES = np.radians(np.arange(-90.0, 90.5, 0.5))
@@ -217,7 +217,7 @@ def dead_reckoned(run, scan_odometry: bool):
     """The localizer with no usable fix (every fix needs more lines than a scan has, and no
     fit rule overrides that): what remains is its odometry, with or without the scans'
     correction."""
-    office = LocalizerConfig.from_yaml("configs/office-laser.yaml")
+    office = LocalizerConfig.from_yaml("fusion/configs/office-laser.yaml")
     laser = office.sensors["laser"].model_copy(update={"min_fix_lines": 1000})
     config = office.model_copy(update={
         "sensors": {"laser": laser},
@@ -255,7 +255,7 @@ def test_wheels_that_over_report_by_four_percent_are_scaled_online() -> None:
     odometry = cfg.odometry.model_copy(update={"left_scale_error": 0.04,
                                                "right_scale_error": 0.04})
     run = simulate(cfg.model_copy(update={"odometry": odometry}))
-    config = LocalizerConfig.from_yaml("configs/office-laser.yaml")
+    config = LocalizerConfig.from_yaml("fusion/configs/office-laser.yaml")
     scaled = CONFIG.model_copy(update={"wheel_scale_sigma": 0.1})
     fused = localize_simulated(run, config.model_copy(update={"scan_odometry": scaled}))
     scale = fused.localizer.scan_odometry.scale
@@ -274,7 +274,7 @@ def test_scan_odometry_keeps_the_heading_where_the_wheels_slip(slipping_run) -> 
 
 
 def test_scan_odometry_with_the_fixes_stays_as_accurate_as_on_good_wheels(slipping_run) -> None:
-    config = LocalizerConfig.from_yaml("configs/office-laser.yaml")
+    config = LocalizerConfig.from_yaml("fusion/configs/office-laser.yaml")
     config = config.model_copy(update={"scan_odometry": CONFIG})
     fused = localize_simulated(slipping_run, config)
     assert fused.lost == 0
@@ -288,7 +288,7 @@ def test_bad_scans_and_readings_leave_a_finite_pose(slipping_run) -> None:
     from fusion.localizer import Localizer
     from houghloc.geometry import ranges_to_points as to_points
 
-    config = LocalizerConfig.from_yaml("configs/office-laser.yaml")
+    config = LocalizerConfig.from_yaml("fusion/configs/office-laser.yaml")
     loc = Localizer(slipping_run.map, config.model_copy(update={"scan_odometry": CONFIG}),
                     initial_pose=slipping_run.odom_truth[0])
     scans = 0

@@ -49,6 +49,7 @@ __all__ = [
     "atomic_write_text",
     "flaser_angles",
     "from_first_scan",
+    "is_rosbag",
     "merge_by_time",
     "open_log",
     "read_camera_points",
@@ -81,13 +82,21 @@ def open_log(
     """Open any supported log; return (events iterator, stats filled while iterating).
 
     ``reader_options`` go to the chosen reader (e.g. ``raw_odometry=`` or ``spacing=`` for CARMEN,
-    ``scan_topics=`` for bags). A simulator directory's ``camera.points`` and ``extra_sources``
+    ``scan_topic=`` for bags). A simulator directory's ``camera.points`` and ``extra_sources``
     are merged with its CARMEN log by time (stable: on equal times the log's events come first);
     the camera file's bad records are counted and warned about in the same stats.
     Raises ``LogError`` for a missing path or a directory that is neither kind.
     """
     events, stats = _open_reader(Path(path), extra_sources, reader_options)
     return iter(StrayStampFilter(events, stats, name=str(path))), stats
+
+
+def is_rosbag(path: str | Path) -> bool:
+    """A ROS 1 ``.bag``, a ROS 2 bag directory, or a ROS 2 bag's storage file."""
+    path = Path(path)
+    if path.is_dir():
+        return (path / "metadata.yaml").is_file() and not (path / SIM_LOG_NAME).is_file()
+    return path.suffix.lower() in ROSBAG_SUFFIXES
 
 
 def _open_reader(path: Path, extra_sources: Iterable[EventSource],

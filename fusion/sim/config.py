@@ -178,7 +178,8 @@ class Kidnap(_Model):
 
 
 class ScenarioConfig(_Model):
-    """One simulated run. ``map`` is a path, or a name under the repository's ``configs/maps/``."""
+    """One simulated run. ``map`` is a path, or the name of a packaged map
+    (``fusion/configs/maps/``)."""
 
     name: str = "custom"
     map: str = "robocup.yaml"

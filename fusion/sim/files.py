@@ -172,7 +172,7 @@ def _write_scenario(run: SimRun, f: IO[str]) -> None:
 
 def load_scenario(path: str | Path) -> ScenarioConfig:
     """Read a scenario YAML; a relative ``map`` is resolved against the file's directory first
-    (then the working directory and ``configs/maps``) and stored as an absolute path."""
+    (then the working directory and ``fusion/configs/maps``) and stored as an absolute path."""
     path = Path(path)
     raw = read_yaml(path, ValueError, "scenario")
     cfg = validated(ScenarioConfig, raw, ValueError, "scenario", str(path))

@@ -9,14 +9,14 @@ so does a dropped beam; a spurious short return is labelled −4. The noise mode
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.sim.config import LaserConfig
 from fusion.sim.raycast import ray_disc_distances
-from houghloc.geometry import ray_segment_distances
+from houghloc.geometry import compose, ray_segment_distances
 from houghloc.segment_map import SegmentMap
 
 FloatArray = NDArray[np.float64]
@@ -183,6 +183,11 @@ class LaserRecording:
                                      self.discs[k], occluders=self.occluders)
                 ranges[i], labels[i] = corrupt_ranges(r, lab, self.cfg, rng)
             yield k0, ranges, labels
+
+    def mounted(self, mount: ArrayLike) -> LaserRecording:
+        """The same recording from a laser mounted at ``mount`` (x, y, θ on the robot's base):
+        each scan cast from the laser's own true pose, robot ⊕ mount."""
+        return replace(self, truth=compose(self.truth, mount))
 
     def scans(self) -> Iterator[tuple[FloatArray, NDArray[np.int16]]]:
         """``(ranges, labels)`` of each scan in order."""

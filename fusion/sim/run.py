@@ -151,7 +151,7 @@ def _times(t0: float, duration: float, rate: float) -> FloatArray:
 
 def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
     """Simulate the scenario. ``map_base``: directory to resolve a relative map path against
-    first (a scenario file's directory); then the working directory and ``configs/maps``."""
+    first (a scenario file's directory); then the working directory and ``fusion/configs/maps``."""
     map_path = resolve_map_path(cfg.map, map_base)
     m = SegmentMap.from_yaml(map_path)
     seeds = np.random.SeedSequence(cfg.seed).spawn(6)

@@ -21,25 +21,27 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
+from fusion.resources import maps_dir
 from fusion.sim.config import ClutterConfig, ObstacleGroup
 from fusion.sim.raycast import min_distance, point_segment_distances
 from houghloc.segment_map import MapError, SegmentMap
 
 FloatArray = NDArray[np.float64]
 
-MAPS_DIR = Path(__file__).resolve().parents[2] / "configs" / "maps"
+MAPS_DIR = maps_dir()
 CONNECT_CLEARANCE = 0.2  # a robot of radius ≈ 0.2 m fits through every passage kept
 _GRID_RESOLUTION = 0.05
 
 
 def resolve_map_path(name: str | Path, base: Path | None = None) -> Path:
-    """Find a map file: as given, relative to ``base``, or in the repository's ``configs/maps``."""
+    """Find a map file: as given, relative to ``base``, or packaged (:mod:`fusion.resources`)."""
     p = Path(name)
+    maps = MAPS_DIR
     candidates = [p] if p.is_absolute() else [
         *([base / p] if base is not None else []),
         p,
-        MAPS_DIR / p,
-        MAPS_DIR / f"{p}.yaml",
+        maps / p,
+        maps / f"{p}.yaml",
     ]
     for c in candidates:
         if c.is_file():
