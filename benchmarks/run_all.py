@@ -15,6 +15,7 @@ BENCHMARKS = {
     "fusion": "benchmarks.bench_fusion",  # replay speed, memory, accuracy of the filter
     "global": "benchmarks.bench_global",  # global set matching vs map size
     "rerun": "benchmarks.bench_rerun",  # replay with the Rerun recording on and off
+    "ros2": "benchmarks.bench_ros2",  # the ROS 2 node's throughput and latency (ros2 extra)
 }
 
 
