@@ -68,12 +68,13 @@ def office_run(seconds: float = 60.0, seed: int = 5) -> tuple[SimRun, NDArray[np
 
 def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: LocalizerConfig,
                         resets: dict[int, NDArray[np.float64]] | None = None,
-                        timeout: float = 5.0) -> NodeRun:
+                        timeout: float = 5.0, logger: object = None) -> NodeRun:
     """Start the node and a client in one process, send the run, collect what comes back.
 
     ``resets``: scan index → a pose sent on /initialpose (with RViz's covariance) just before
     that scan; the first scan always gets the true start pose that way (the node itself starts
-    with none). Raises TimeoutError when the node does not answer a scan in ``timeout``."""
+    with none). ``logger``: the node's Rerun recording, if any. Raises TimeoutError when the
+    node does not answer a scan in ``timeout``."""
     import rclpy
     from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
     from nav_msgs.msg import Odometry
@@ -98,7 +99,7 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
     got = threading.Condition()
     context = rclpy.Context()
     rclpy.init(context=context)
-    node = LocalizerNode(run.map, config, None, context=context)
+    node = LocalizerNode(run.map, config, None, logger, context=context)  # type: ignore[arg-type]
     client = rclpy.create_node("houghloc_client", context=context)
 
     def on_pose(msg: PoseWithCovarianceStamped) -> None:
@@ -261,6 +262,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
     parser.add_argument("--plot", metavar="PNG", help="draw the run (docs/images/ros2_node.png)")
+    parser.add_argument("--rrd", metavar="FILE", help="record the node's run for Rerun")
     args = parser.parse_args(argv)
     try:
         import rclpy  # noqa: F401
@@ -272,7 +274,14 @@ def main(argv: list[str] | None = None) -> dict:
     config = LocalizerConfig.from_yaml("office-laser")
     middle = len(run.scan_t) // 2
     resets = {0: run.scan_truth[0], middle: run.scan_truth[middle] + np.array([0.3, -0.2, 0.05])}
-    result = stream_through_node(run, ranges, config, resets=resets)
+    logger = None
+    if args.rrd:
+        from fusion.rerun_logger import RerunLogger
+
+        logger = RerunLogger(args.rrd)
+    result = stream_through_node(run, ranges, config, resets=resets, logger=logger)
+    if logger is not None:
+        logger.close()
     if args.plot:
         plot(run, result, resets, args.plot)
     offline = replay_rate(run, config)

@@ -291,8 +291,6 @@ def cmd_run(args: argparse.Namespace) -> int:
                            {"map": str(args.map), "log_path": str(args.log),
                             "ground_truth": str(gt_path) if gt_path else None})
     write_metrics(args.out / "metrics.json", doc)
-    _serve_until_interrupted(args, logger)
-    logger.close()
     summary, warned = run_summary(result, loc)
     print(summary)
     for text in warned:
@@ -304,6 +302,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         _print_accuracy_rows([("houghloc", doc)])
     print(f"wrote {args.out / 'trajectory.tum'}, {args.out / 'metrics.json'}"
           + ("" if args.no_rerun else f", {args.out / 'run.rrd'}"))
+    if not result.interrupted:  # the results first, then the viewer as long as it is wanted
+        _serve_until_interrupted(args, logger)
+    logger.close()
     if result.interrupted:
         return _Stop.exit_code()
     if args.strict and not loc.localized:
@@ -335,15 +336,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
                                                         "seed": args.seed})
     dead_reckoning = accuracy(_resampled(odometry_only, result.t), truth)
     write_metrics(args.out / "metrics.json", {**fused, "odometry_only": dead_reckoning})
-    _serve_until_interrupted(args, logger)
-    logger.close()
     print()
     _print_accuracy_rows([("odometry only", dead_reckoning), ("houghloc (fused)", fused)])
     print(f"\n{len(result.t)} scans, {result.scans_per_second:.0f} scans/s; "
           f"outputs in {args.out}/ (trajectory.tum, metrics.json"
           + ("" if args.no_rerun else ", run.rrd — open it with `rerun "
              f"{args.out / 'run.rrd'}`") + ")")
-    return 0
+    if not result.interrupted:
+        _serve_until_interrupted(args, logger)
+    logger.close()
+    return _Stop.exit_code() if result.interrupted else 0
 
 
 def cmd_sim(args: argparse.Namespace) -> int:

@@ -54,9 +54,11 @@ the world view is the map mirrored top to bottom; hovering shows true map coordi
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import math
 import shutil
+import signal
 import subprocess
 import time
 import uuid
@@ -75,6 +77,7 @@ from houghloc.geometry import compose, relative, transform_points, wrap_angle
 
 _log = logging.getLogger(__name__)
 
+PR_SET_PDEATHSIG = 1  # prctl(2): the signal a child gets when its parent ends
 SERVE_HOST = "127.0.0.1"  # serve to this machine only: a recording can show where a robot is
 GRPC_PORT = 9876
 WEB_PORT = 9090
@@ -781,13 +784,24 @@ class RerunLogger:
         try:
             self._web_viewer = subprocess.Popen(web_viewer_command(grpc_url, web_port),
                                                 stdout=subprocess.DEVNULL,
-                                                stderr=subprocess.DEVNULL)
+                                                stderr=subprocess.DEVNULL,
+                                                preexec_fn=_die_with_parent)
         except OSError as exc:
             _log.warning("cannot start the Rerun web viewer (%s); open %s with `rerun`",
                          exc, grpc_url)
             return
         self.web_url = f"http://{SERVE_HOST}:{web_port}/?url={quote(grpc_url, safe='')}"
         _log.info("Rerun web viewer: %s", self.web_url)
+
+
+def _die_with_parent() -> None:
+    """In the web viewer's process, before it starts: Linux ends it with SIGTERM when houghloc
+    ends, however it ends (close() stops it on a normal exit; a SIGKILL or a crash skips that)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):  # not Linux: close() is what stops it
+        pass
 
 
 def _heading(pose: NDArray[np.float64]) -> NDArray[np.float64]:

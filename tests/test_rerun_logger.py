@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import inspect
 import socket
+import subprocess
+import sys
+import time
 from collections import defaultdict
 from pathlib import Path
 
@@ -231,6 +234,46 @@ def test_serving_binds_localhost_only(tmp_path: Path) -> None:
         assert mine == [f"0100007F:{port:04X}"]  # 127.0.0.1 only, no 0.0.0.0 nor [::]
     finally:
         logger.close()
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_the_web_viewer_ends_with_houghloc_however_it_ends(tmp_path: Path) -> None:
+    """A process serving the viewer is killed outright (no close(), no handler runs): its
+    `rerun --serve-web` child must not outlive it, holding the port."""
+    script = (
+        "import sys, time\n"
+        "from fusion.rerun_logger import RerunLogger\n"
+        f"logger = RerunLogger(None, serve=True, grpc_port={_free_port()}, "
+        f"web_port={_free_port()})\n"
+        "print(logger._web_viewer.pid, flush=True)\n"
+        "time.sleep(60)\n")
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        line = parent.stdout.readline() if parent.stdout else ""
+        if not line.strip():
+            pytest.skip("the Rerun web viewer could not be started here")
+        child = int(line)
+        assert Path(f"/proc/{child}").exists()
+    finally:
+        parent.kill()
+        parent.wait(timeout=10)
+    deadline = time.monotonic() + 10
+    while _alive(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(child), "the web viewer outlived houghloc"
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie waiting for its reaper has ended)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False
 
 
 def test_points_off_every_line_are_grey(tmp_path: Path, robocup: SegmentMap,
