@@ -77,15 +77,17 @@ class AmbiguityConfig(BaseModel):
     view_spacing: float = Field(
         0.03, ge=0.0, description="m travelled (or view_spacing_deg turned) between views: a "
         "robot standing still adds no evidence")
-    view_spacing_deg: float = Field(2.0, ge=0.0)
+    view_spacing_deg: float = Field(2.0, ge=0.0, description="° turned between views")
     max_points: int = Field(4000, ge=100, description="accumulated points kept (subsampled)")
     min_score: float = Field(0.85, ge=0.0, le=1.0, description="global hypothesis acceptance")
     decisive_margin: float = Field(
         0.05, ge=0.0, description="the winner must beat any other pose by this much; closer "
         "rivals are a tie and more views are collected")
     reinit_sigma_xy: float = Field(0.05, gt=0.0, description="m, floor on the new covariance")
-    reinit_sigma_theta_deg: float = Field(1.0, gt=0.0)
-    failures_until_lost: int = Field(3, ge=1)
+    reinit_sigma_theta_deg: float = Field(1.0, gt=0.0, description="°, floor on the new "
+                                          "covariance")
+    failures_until_lost: int = Field(3, ge=1, description="global matches without a decisive "
+                                     "pose before the state says lost (and retries back off)")
     tie_window: int = Field(
         10, ge=2, description="scans over which tied poses are compared by how well they fit")
     tie_lead: float = Field(
@@ -142,7 +144,8 @@ class AmbiguityConfig(BaseModel):
     # rest of the building cannot compete.
     local_search_xy: float | None = Field(
         1.0, gt=0.0, description="m; radius of the local re-search (None: no local search)")
-    local_search_theta_deg: float = Field(20.0, gt=0.0, le=180.0)
+    local_search_theta_deg: float = Field(20.0, gt=0.0, le=180.0,
+                                          description="°; heading range of the local re-search")
     # What keeps a wrong pose out is a rival, not a level: a cluttered room fits 0.45-0.7 at the
     # right pose where a corridor fits 0.8, so a pose needing 0.9 of the recent fixes' fraction
     # was refused there, and lowering that level alone let wrong poses in (Freiburg 079: at a

@@ -7,6 +7,7 @@
     houghloc map build (--log CORRECTED_LOG | --grid ROS_MAP.yaml) --out MAP.yaml
     houghloc sweep --spec SPEC.yaml --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
     houghloc ros2 --map M [--config C] [--initial-pose X Y THETA] [--ros-args ...]
+    houghloc config (--defaults | --show CFG | --reference)
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -90,6 +92,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"houghloc: interrupted ({_Stop.signal.name})", file=sys.stderr)
         return _Stop.exit_code()
+    except BrokenPipeError:  # `houghloc config --defaults | head`: the reader has what it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 128 + int(signal.SIGPIPE)
     except Exception as exc:  # every failure is a message, not a traceback
         if getattr(args, "debug", False):
             raise
@@ -228,6 +233,19 @@ def build_parser() -> argparse.ArgumentParser:
     ros2.add_argument("--serve", action="store_true",
                       help="also serve the Rerun web viewer on localhost")
     ros2.set_defaults(func=cmd_ros2)
+
+    cf = sub.add_parser(
+        "config", help="print the settings: defaults, a file's, or the reference",
+        description="Print a localizer configuration as YAML, each setting under its meaning: "
+        "the defaults, or a file overlaid on them (what a run would use). --reference prints "
+        "the parameter reference (Markdown, docs/parameters.md).")
+    shown = cf.add_mutually_exclusive_group(required=True)
+    shown.add_argument("--defaults", action="store_true", help="the default configuration")
+    shown.add_argument("--show", type=Path, metavar="CFG",
+                       help="a config file, packaged name or metrics.json, with the defaults")
+    shown.add_argument("--reference", action="store_true",
+                       help="every setting's default and meaning, as Markdown")
+    cf.set_defaults(func=cmd_config)
 
     mp = sub.add_parser("map", help="segment maps").add_subparsers(dest="map_command",
                                                                    required=True)
@@ -457,6 +475,19 @@ def cmd_ros2(args: argparse.Namespace) -> int:
                         logger, args.ros_args)
     finally:
         logger.close()
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    from fusion.config import LocalizerConfig
+    from fusion.config_reference import commented_yaml, reference_markdown
+
+    if args.reference:
+        print(reference_markdown(), end="")
+    else:
+        config = LocalizerConfig.from_yaml(args.show)  # None: the defaults
+        print(f"# houghloc {_version()}: {'the defaults' if args.show is None else args.show}")
+        print(commented_yaml(config))
+    return 0
 
 
 def cmd_map_build(args: argparse.Namespace) -> int:

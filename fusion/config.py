@@ -37,10 +37,14 @@ class _Strict(BaseModel):
 class SensorConfig(_Strict):
     """One range sensor: where it is on the robot, what it sees, and its Hough settings."""
 
-    kind: Literal["laser", "camera"] = "laser"
-    mount: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="x, y, θ on base")
-    min_range: float = Field(0.05, ge=0.0)
-    max_range: float = Field(20.0, gt=0.0, description="returns at or beyond mean no return")
+    kind: Literal["laser", "camera"] = Field("laser", description="laser: ranges and bearings; "
+                                             "camera: points triangulated on the floor")
+    mount: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="m, m, rad: the sensor's pose on the robot's base (x ahead, "
+        "y left, θ counter-clockwise); a ROS bag's /tf_static gives it when it has one")
+    min_range: float = Field(0.05, ge=0.0, description="m; nearer returns are the robot itself")
+    max_range: float = Field(20.0, gt=0.0, description="m; returns at or beyond it mean no "
+                             "return")
     hough: HoughConfig = HoughConfig()
     min_fix_lines: int = Field(
         2, ge=1, description="matched lines a fix needs to be used: a single line cannot be "
@@ -61,8 +65,10 @@ class FilterConfig(_Strict):
     """The EKF and its history of delayed measurements (DESIGN §4)."""
 
     motion: OdometryMotionConfig = OdometryMotionConfig()
-    initial_sigma_xy: float = Field(0.05, gt=0.0, description="m, with --initial-pose")
-    initial_sigma_theta_deg: float = Field(1.0, gt=0.0)
+    initial_sigma_xy: float = Field(0.05, gt=0.0,
+                                    description="m; σ in x and y of an initial pose given")
+    initial_sigma_theta_deg: float = Field(1.0, gt=0.0,
+                                           description="°; σ of an initial pose's heading")
     gate_probability: float = Field(
         0.9999, gt=0.5, lt=1.0, description="NIS gate: χ² probability that a right fix passes")
     history_seconds: float = Field(2.0, gt=0.0, description="how late a measurement may be")

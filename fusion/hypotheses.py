@@ -87,7 +87,7 @@ class HypothesisConfig(BaseModel):
     update_distance: float = Field(
         0.1, ge=0.0, description="m travelled (or update_angle_deg turned) between weight "
         "updates: a robot standing still adds no evidence")
-    update_angle_deg: float = Field(5.0, ge=0.0)
+    update_angle_deg: float = Field(5.0, ge=0.0, description="° turned between weight updates")
 
 
 @dataclass

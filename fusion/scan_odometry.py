@@ -50,7 +50,8 @@ class ScanOdometryConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    enabled: bool = True
+    enabled: bool = Field(True, description="correct the wheels' increments by matching each "
+                          "scan to the previous one")
     sensor: str | None = Field(
         None, description="the sensor whose scans are matched; None: the first laser configured "
         "(none: no scan matching)")
@@ -58,7 +59,8 @@ class ScanOdometryConfig(BaseModel):
     max_pair_distance: float = Field(
         0.6, gt=0, description="m, pairing distance of the first iteration; it shrinks to "
         "final_pair_distance, so a start 0.5 m off still converges and outliers end unpaired")
-    final_pair_distance: float = Field(0.15, gt=0)
+    final_pair_distance: float = Field(0.15, gt=0, description="m, pairing distance of the last "
+                                       "iteration")
     max_neighbour_gap: float = Field(
         0.5, gt=0, description="m; a point farther than this from a neighbour in beam order "
         "has no normal and is not paired (the scan jumps between objects there)")
@@ -77,7 +79,8 @@ class ScanOdometryConfig(BaseModel):
     floor_theta_deg: float = Field(0.3, ge=0, description="least σ of a matched turn")
     max_correction_xy: float = Field(
         0.5, gt=0, description="m; a match farther from the wheels' increment is not used")
-    max_correction_theta_deg: float = Field(20.0, gt=0)
+    max_correction_theta_deg: float = Field(20.0, gt=0, description="°; a match turned farther "
+                                            "from the wheels' increment is not used")
     wheel_scale_sigma: float | None = Field(
         None, gt=0, description="the wheels' distance scale is estimated online from the "
         "matches, from 1 ± this (how far from nominal a wheel's radius may be, e.g. 0.1; None: "

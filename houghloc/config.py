@@ -19,28 +19,37 @@ class HoughConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     # --- grid and voting (§3.2)
-    theta_step_deg: float = Field(3.0, gt=0.0, le=45.0)
-    rho_step: float = Field(0.10, gt=0.0, description="m")
+    theta_step_deg: float = Field(3.0, gt=0.0, le=45.0, description="° between the grid's θ "
+                                  "cells (the paper's 3°: the grid only separates lines)")
+    rho_step: float = Field(0.10, gt=0.0, description="m between the grid's ρ cells")
     rho_max: float = Field(20.0, gt=0.0, description="m; votes beyond are dropped")
-    # Lines through the sensor (ρ ≈ 0) vote on both sides of the θ ↔ θ+π identity: keep a few
-    # negative-ρ cells so that neither half loses the votes that noise pushes below zero.
-    rho_margin_cells: int = Field(2, ge=0, le=10)
+    rho_margin_cells: int = Field(
+        2, ge=0, le=10, description="negative-ρ cells kept: lines through the sensor (ρ ≈ 0) "
+        "vote on both sides of the θ ↔ θ+π identity, and noise pushes some votes below zero")
     # --- peaks
-    peak_fraction: float = Field(0.04, gt=0.0, lt=1.0, description="of the points")
-    peak_min_votes: int = Field(8, ge=2)
-    nms_theta_cells: int = Field(2, ge=1, description="half-width of the suppression window")
-    nms_rho_cells: int = Field(2, ge=1)
-    max_peaks: int = Field(16, ge=1)
+    peak_fraction: float = Field(0.04, gt=0.0, lt=1.0, description="fraction of the scan's "
+                                 "points a peak needs (or peak_min_votes, the larger)")
+    peak_min_votes: int = Field(8, ge=2, description="points a peak needs at least (and a scan, "
+                                "to be matched at all)")
+    nms_theta_cells: int = Field(2, ge=1, description="half-width in θ cells of the window a "
+                                 "peak must be the maximum of")
+    nms_rho_cells: int = Field(2, ge=1, description="half-width in ρ cells of the suppression "
+                               "window")
+    max_peaks: int = Field(16, ge=1, description="lines kept per scan, the best supported first")
     # --- refinement (§3.3)
-    refine: bool = True
-    refine_iterations: int = Field(2, ge=1)
-    refine_band_sigmas: float = Field(4.0, gt=0.0)
-    refine_min_band: float = Field(0.03, gt=0.0, description="m")
+    refine: bool = Field(True, description="refine peaks to lines by total least squares "
+                         "(false: the grid cell's centre, the paper's precision)")
+    refine_iterations: int = Field(2, ge=1, description="total-least-squares refits, each on the "
+                                   "points within the band of the last fit")
+    refine_band_sigmas: float = Field(4.0, gt=0.0, description="the band's half-width, in σ of "
+                                      "the points about the line")
+    refine_min_band: float = Field(0.03, gt=0.0, description="m; least half-width of the band "
+                                   "of points a line is refitted on")
     refine_max_band: float | None = Field(
         None, gt=0.0, description="m; None: one ρ cell (noisier sensors need more)"
     )
     piece_gap: float = Field(0.5, gt=0.0, description="m; a larger gap splits a line into pieces")
-    min_piece_points: int = Field(5, ge=2)
+    min_piece_points: int = Field(5, ge=2, description="points a piece of line needs")
     min_line_length: float = Field(0.6, ge=0.0, description="m; shorter pieces are not lines")
     max_line_sigma: float = Field(0.05, gt=0.0, description="m; rougher fits are not lines")
     point_sigma_floor: float = Field(0.003, gt=0.0, description="m; floor on the fitted σ")
@@ -56,11 +65,14 @@ class HoughConfig(BaseModel):
         0.02, ge=0.0, description="m; σ of a line's ρ that no fit removes: the map's model error")
     # --- map references (§3.4)
     max_range: float | None = Field(None, gt=0.0, description="m; None: from the points")
-    reference_kinds: tuple[str, ...] = ("wall",)
-    visibility_rays: int = Field(180, ge=8)
+    reference_kinds: tuple[str, ...] = Field(
+        ("wall",), description="map segment kinds this sensor sees (a camera also sees lines)")
+    visibility_rays: int = Field(180, ge=8, description="rays cast around the guess to find the "
+                                 "map lines in view (once per map cell, memoised)")
     # --- correspondence and displacement (§3.5)
     guess_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior when no covariance given")
-    guess_sigma_theta_deg: float = Field(5.0, gt=0.0)
+    guess_sigma_theta_deg: float = Field(5.0, gt=0.0, description="°; prior when no covariance "
+                                         "given")
     gate_probability: float = Field(
         0.9999, gt=0.5, lt=1.0, description="χ²(2) probability that a line's right reference "
         "falls inside its match gate")

@@ -84,8 +84,9 @@ class GlobalMatchConfig(BaseModel):
         150_000, ge=1, description="budget of hypotheses; best-conditioned pairs go first")
     bbox_margin: float = Field(0.0, ge=0.0, description="m; poses beyond the map's box are dropped")
     # --- pose-space votes and cheap score
-    vote_cell_xy: float = Field(0.25, gt=0.0, description="m")
-    vote_cell_theta_deg: float = Field(3.0, gt=0.0)
+    vote_cell_xy: float = Field(0.25, gt=0.0, description="m; pose-space vote cell in x and y")
+    vote_cell_theta_deg: float = Field(3.0, gt=0.0, description="°; pose-space vote cell in "
+                                       "heading")
     max_cells_cheap: int = Field(
         30_000, ge=1, description="best-voted cells given the cheap score")
     line_samples: int = Field(4, ge=2, description="samples along each line for the cheap score")
@@ -102,13 +103,14 @@ class GlobalMatchConfig(BaseModel):
     # Negative evidence, for the refined hypotheses: a point behind a wall that the hypothesis
     # puts between it and the robot was seen *through* that wall, so it does not count. This is
     # what separates two rooms alike but for a pillar that one of them would have shown.
-    check_visibility: bool = True
+    check_visibility: bool = Field(True, description="points seen through a wall do not count")
     visibility_margin: float = Field(
         0.25, ge=0.0, description="m; also absorbs the baseline between accumulated views")
     # --- only parallel lines in view (a corridor seen along its length): the pose along them
     # is found by sliding the view along each map line and counting the points on walls (door
     # gaps and what shows through them), the only part of the view that fixes it
-    slide_along_parallel: bool = True
+    slide_along_parallel: bool = Field(True, description="slide a view of parallel lines along "
+                                       "them when no pair of lines fixes the pose")
     slide_step: float = Field(0.1, gt=0.0, description="m; coarse step of the slide")
     slide_fine_step: float = Field(0.02, gt=0.0, description="m; step around the best ones")
     slide_points: int = Field(400, ge=10, description="points subsampled for the slide")
@@ -121,11 +123,13 @@ class GlobalMatchConfig(BaseModel):
         "fraction of points): otherwise the view does not fix the position along the lines")
     # --- clusters, refinement, decision
     cluster_xy: float = Field(0.3, gt=0.0, description="m; closer poses are one hypothesis")
-    cluster_theta_deg: float = Field(5.0, gt=0.0)
+    cluster_theta_deg: float = Field(5.0, gt=0.0, description="°; closer headings are one "
+                                     "hypothesis")
     max_refined: int = Field(8, ge=1, description="clusters refined and reported")
     refine_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior around a hypothesis")
-    refine_sigma_theta_deg: float = Field(3.0, gt=0.0)
-    refine_iterations: int = Field(2, ge=1)
+    refine_sigma_theta_deg: float = Field(3.0, gt=0.0, description="°; prior around a "
+                                          "hypothesis")
+    refine_iterations: int = Field(2, ge=1, description="matching corrections of a hypothesis")
     min_lines_explained: int = Field(2, ge=2, description="and two of them non-parallel (rank 3)")
     tie_margin: float = Field(
         0.02, ge=0.0, description="hypotheses this close to the best score tie with it")
