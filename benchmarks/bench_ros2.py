@@ -142,7 +142,8 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
 
     try:
         wait(lambda: all(p.get_subscription_count() for p in
-                         (scan_pub, odom_pub, initial_pub, static_pub)), "discovery")
+                         (scan_pub, odom_pub, initial_pub, static_pub, node.pose_pub,
+                          node.state_pub, node.tf_pub)), "discovery")
         static = TFMessage(transforms=[_transform(TransformStamped(), "base_footprint", "laser",
                                                   EPOCH + run.scan_t[0], MOUNT)])
         static_pub.publish(static)
@@ -153,14 +154,15 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
         started = time.perf_counter()
         for k, (t, r) in enumerate(zip(run.scan_t, ranges, strict=True)):
             if k in resets:
-                states = len(out.states)
+                taken = _initial_poses_taken(out.states)
                 msg = PoseWithCovarianceStamped()
                 msg.header.frame_id = "map"
                 set_stamp(msg.header.stamp, EPOCH + t)
                 set_planar_pose(msg.pose.pose, resets[k])
                 msg.pose.covariance = ros_covariance(np.diag(RVIZ_COVARIANCE))
                 initial_pub.publish(msg)
-                wait(lambda s=states: len(out.states) > s, "the initial pose")
+                # (the latched state of the node's start may arrive meanwhile: wait for this one)
+                wait(lambda n=taken: _initial_poses_taken(out.states) > n, "the initial pose")
             scan = LaserScan()
             scan.header.frame_id = "laser"
             set_stamp(scan.header.stamp, EPOCH + t)
@@ -194,6 +196,10 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
             raise RuntimeError("the executor thread did not stop")
         out.shutdown_seconds = time.perf_counter() - stopping
     return out
+
+
+def _initial_poses_taken(states: list[str]) -> int:
+    return sum("initial pose received" in s for s in states)
 
 
 def _transform(tf, parent: str, child: str, t: float, pose) -> object:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -134,10 +134,10 @@ class LocalizerConfig(_Strict):
         """This configuration with ``sensor`` mounted at ``mount`` (validated again: the
         Hough grid's reach depends on the mount)."""
         raw = self.as_dict()
-        raw["sensors"][sensor]["mount"] = list(mount)  # type: ignore[index]
+        raw["sensors"][sensor]["mount"] = list(mount)
         return type(self).from_dict(raw, source=f"mount of {sensor}")
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> dict[str, Any]:
         """Every setting, defaults included, as plain YAML/JSON values: what ``from_dict``
         reads back to the same configuration."""
         return self.model_dump(mode="json")

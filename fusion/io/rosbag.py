@@ -157,6 +157,7 @@ class RosbagLog:
     def _topics(self, connections: Sequence[Any]) -> tuple[str, str | None]:
         scan = _choose(self.path, connections, LASER_SCAN, self.scan_topic, DEFAULT_SCAN_TOPIC,
                        "--scan-topic")
+        assert scan is not None  # required: a LogError otherwise
         odometry = _choose(self.path, connections, ODOMETRY, self.odometry_topic,
                            DEFAULT_ODOMETRY_TOPIC, "--odom-topic", required=False)
         return scan, odometry
@@ -275,13 +276,27 @@ def message_to_event(
     """A decoded ``LaserScan`` (fed to configured ``sensor``) or ``Odometry`` message as an
     event, stamped with its header (``bag_time_ns`` when that is unset). The same for a bag's
     messages and a live node's (the attributes are ROS's, whoever decoded them)."""
-    t = _stamp(msg, bag_time_ns)
     if msgtype == ODOMETRY:
-        p, q = msg.pose.pose.position, msg.pose.pose.orientation
-        theta = yaw_from_quaternion(q.x, q.y, q.z, q.w)
-        if not all(math.isfinite(v) for v in (p.x, p.y, theta)):
-            raise ValueError("non-finite odometry pose")
-        return Odometry(t, float(p.x), float(p.y), theta)
+        return odometry_event(msg, bag_time_ns)
+    return scan_event(msg, sensor, bag_time_ns, angles_cache)
+
+
+def odometry_event(msg: Any, bag_time_ns: int = 0) -> Odometry:
+    """``nav_msgs/Odometry`` → :class:`Odometry` (x, y and the yaw of the pose)."""
+    t = _stamp(msg, bag_time_ns)
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    theta = yaw_from_quaternion(q.x, q.y, q.z, q.w)
+    if not all(math.isfinite(v) for v in (p.x, p.y, theta)):
+        raise ValueError("non-finite odometry pose")
+    return Odometry(t, float(p.x), float(p.y), theta)
+
+
+def scan_event(msg: Any, sensor: str, bag_time_ns: int = 0,
+               angles_cache: dict[tuple[int, float, float], NDArray[np.float64]] | None = None
+               ) -> Scan:
+    """``sensor_msgs/LaserScan`` → :class:`Scan` (NaN and below ``range_min``: no return)."""
+    t = _stamp(msg, bag_time_ns)
+    angles_cache = {} if angles_cache is None else angles_cache
     ranges = np.asarray(msg.ranges, dtype=float).copy()
     invalid = np.isnan(ranges) | (ranges < msg.range_min)
     ranges[invalid] = np.inf

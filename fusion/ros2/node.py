@@ -41,7 +41,7 @@ from std_msgs.msg import String
 
 from fusion.config import LocalizerConfig
 from fusion.events import Scan
-from fusion.io.rosbag import LASER_SCAN, StaticTree, message_to_event
+from fusion.io.rosbag import StaticTree, odometry_event, scan_event
 from fusion.localizer import Estimate, Localizer
 from fusion.ros2.messages import (
     map_to_odom,
@@ -134,7 +134,7 @@ class LocalizerNode(Node):
     # ------------------------------------------------------------------------------ inputs
     def _on_odometry(self, msg: OdometryMsg) -> None:
         try:
-            event = message_to_event(msg, "nav_msgs/msg/Odometry", self.sensor, 0, self._angles)
+            event = odometry_event(msg)
         except ValueError as err:
             self.get_logger().warning(f"odometry dropped: {err}")
             return
@@ -144,8 +144,7 @@ class LocalizerNode(Node):
         self._release(event.t)
 
     def _on_scan(self, msg: LaserScan) -> None:
-        scan = message_to_event(msg, LASER_SCAN, self.sensor, 0, self._angles)
-        assert isinstance(scan, Scan)
+        scan = scan_event(msg, self.sensor, 0, self._angles)
         self._frame = msg.header.frame_id
         if len(self._pending) == PENDING_SCANS:
             self._pending.popleft()
@@ -207,8 +206,7 @@ class LocalizerNode(Node):
             sigma_xy = math.sqrt(max(self._start_cov[0, 0], self._start_cov[1, 1], 1e-8))
             sigma_theta = math.degrees(math.sqrt(max(self._start_cov[2, 2], 1e-10)))
             raw = config.as_dict()
-            raw["filter"].update(initial_sigma_xy=sigma_xy,  # type: ignore[union-attr]
-                                 initial_sigma_theta_deg=sigma_theta)
+            raw["filter"].update(initial_sigma_xy=sigma_xy, initial_sigma_theta_deg=sigma_theta)
             config = LocalizerConfig.from_dict(raw, "initialpose")
         localizer = Localizer(self.map, config, self._start_pose, self.rerun)
         before = [o for o in self._odometry if o[0] <= t]
