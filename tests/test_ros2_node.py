@@ -120,3 +120,73 @@ def test_the_command_runs_the_node_until_a_signal(signum, tmp_path):
     assert node.returncode == 0, err
     assert "Traceback" not in err and "warning" not in err
     assert err.endswith("houghloc: 0 scans localized, 0 dropped\n")
+
+
+def test_bad_messages_are_dropped_with_a_warning_and_the_node_goes_on() -> None:
+    """Each callback gets what a faulty driver or a stray click sends; none may raise (an
+    exception in a callback ends the executor), and the good scans after them still localize.
+    The callbacks are called directly: the fault is in the message, not in its transport."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import LaserScan
+    from tf2_msgs.msg import TFMessage
+
+    from benchmarks.bench_ros2 import EPOCH, _odometry
+    from fusion.ros2.messages import ros_covariance, set_planar_pose, set_stamp
+    from fusion.ros2.node import LocalizerNode
+
+    run, _ = office_run(seconds=3.0, seed=2)
+    ranges = run.ranges  # the laser at the base's origin: the broken /tf_static is not used
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = LocalizerNode(run.map, LocalizerConfig.from_yaml("office-laser"), None,
+                         context=context)
+    cfg = run.config.laser
+
+    def scan(t: float, r, increment: float = float(run.angles[1] - run.angles[0]),
+             frame: str = "laser") -> LaserScan:
+        msg = LaserScan()
+        msg.header.frame_id = frame
+        set_stamp(msg.header.stamp, t)
+        msg.angle_min, msg.angle_increment = float(run.angles[0]), increment
+        msg.range_min, msg.range_max = float(cfg.min_range), float(cfg.max_range)
+        msg.ranges = [float(v) for v in r]
+        return msg
+
+    def initial(pose, cov=(0.25, 0.25, 0.07)) -> PoseWithCovarianceStamped:
+        msg = PoseWithCovarianceStamped()
+        set_planar_pose(msg.pose.pose, np.asarray(pose, dtype=float))
+        msg.pose.covariance = ros_covariance(np.diag(cov))
+        return msg
+
+    try:
+        bad_mount = TransformStamped()
+        bad_mount.header.frame_id, bad_mount.child_frame_id = "base_footprint", "laser"
+        bad_mount.transform.translation.x = float("nan")
+        node._on_tf_static(TFMessage(transforms=[bad_mount]))
+        node._on_initial_pose(initial([np.nan, 0.0, 0.0]))  # dropped
+        node._on_initial_pose(initial([1e7, -1e7, 0.0], cov=(-1.0, 1e30, 1e30)))
+        t0 = EPOCH + run.scan_t[0]
+        node._on_odometry(_odometry(Odometry(), t0, [np.nan, 0.0, 0.0]))  # dropped
+        node._on_odometry(_odometry(Odometry(), t0, run.odom_pose[0]))
+        for msg in (scan(t0, []), scan(t0, [np.nan] * 361), scan(t0, [np.inf] * 361),
+                    scan(t0, [1e300] * 361), scan(t0, ranges[0], increment=np.nan),
+                    scan(t0, ranges[0], increment=0.0), scan(-5.0, ranges[0]),
+                    scan(t0 + 1e6, ranges[0])):
+            node._on_scan(msg)
+        node._release_waiting()
+        time.sleep(node.odom_wait)
+        node._release_waiting()  # every bad scan has gone through or been dropped
+        assert node.localizer is not None and np.isfinite(node.localizer.pose).all()
+        assert node.localizer.initial_pose is None  # the absurd pose was refused
+        node._on_initial_pose(initial(run.scan_truth[0]))
+        odometry = list(zip(run.odom_t, run.odom_pose, strict=True))
+        for t, r in zip(run.scan_t, ranges, strict=True):
+            for ot, pose in [o for o in odometry if t - 0.1 < o[0] <= t]:
+                node._on_odometry(_odometry(Odometry(), EPOCH + ot, pose))
+            node._on_scan(scan(EPOCH + t, r))
+        final = node.localizer.pose
+        assert np.hypot(*(final[:2] - run.scan_truth[-1][:2])) < 0.05
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)

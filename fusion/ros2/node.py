@@ -57,6 +57,8 @@ from fusion.visualize import NullLogger
 from houghloc import SegmentMap
 from houghloc.geometry import wrap_angle
 
+MAX_INITIAL_SIGMA_XY = 1.0e3
+"""m: an initial pose's σ beyond this (a click that means "somewhere") is taken as this."""
 PENDING_SCANS = 10
 """Scans held for odometry at most; beyond, the oldest is dropped (the node is behind)."""
 ODOMETRY_KEPT = 1000
@@ -198,17 +200,27 @@ class LocalizerNode(Node):
         is there, the pose given (or global localization), the odometry up to ``t``."""
         config = self.config
         mount = self._static.planar(self.base_frame, self._frame.lstrip("/"))
-        if mount is not None:
+        if mount is not None and all(map(math.isfinite, mount)):
             config = config.with_mount(self.sensor, mount)
             self.get_logger().info("laser mount from /tf_static: x {:.3f} y {:.3f} θ {:.4f}"
                                    .format(*mount))
+        elif mount is not None:
+            self.get_logger().warning("/tf_static gives the laser a non-finite pose: the "
+                                      "config's mount is used")
         if self._start_cov is not None:
             sigma_xy = math.sqrt(max(self._start_cov[0, 0], self._start_cov[1, 1], 1e-8))
             sigma_theta = math.degrees(math.sqrt(max(self._start_cov[2, 2], 1e-10)))
             raw = config.as_dict()
-            raw["filter"].update(initial_sigma_xy=sigma_xy, initial_sigma_theta_deg=sigma_theta)
+            raw["filter"].update(initial_sigma_xy=min(sigma_xy, MAX_INITIAL_SIGMA_XY),
+                                 initial_sigma_theta_deg=min(sigma_theta, 180.0))
             config = LocalizerConfig.from_dict(raw, "initialpose")
-        localizer = Localizer(self.map, config, self._start_pose, self.rerun)
+        try:
+            localizer = Localizer(self.map, config, self._start_pose, self.rerun)
+        except ValueError as err:  # a pose outside the map: not where the robot can be
+            self.get_logger().warning(f"initial pose refused ({err}): global localization")
+            self._start_pose = self._start_cov = None
+            localizer = Localizer(self.map, config.model_copy(update={"initial_pose": None}),
+                                  None, self.rerun)
         before = [o for o in self._odometry if o[0] <= t]
         if before:  # the reading the pose is given at: the increments start there
             localizer.on_odometry(*before[-1])
