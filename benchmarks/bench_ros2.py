@@ -14,6 +14,10 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 from array import array
@@ -68,13 +72,16 @@ def office_run(seconds: float = 60.0, seed: int = 5) -> tuple[SimRun, NDArray[np
 
 def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: LocalizerConfig,
                         resets: dict[int, NDArray[np.float64]] | None = None,
-                        timeout: float = 5.0, logger: object = None) -> NodeRun:
+                        timeout: float = 5.0, logger: object = None,
+                        separate: str | None = None) -> NodeRun:
     """Start the node and a client in one process, send the run, collect what comes back.
 
     ``resets``: scan index → a pose sent on /initialpose (with RViz's covariance) just before
     that scan; the first scan always gets the true start pose that way (the node itself starts
     with none). ``logger``: the node's Rerun recording, if any. Raises TimeoutError when the
-    node does not answer a scan in ``timeout``."""
+    node does not answer a scan in ``timeout``. ``separate``: the name of a packaged config to
+    run the node with as ``houghloc ros2`` in a process of its own, as on a robot (``config``
+    is then unused), on a DDS domain of its own."""
     import rclpy
     from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
     from nav_msgs.msg import Odometry
@@ -98,8 +105,19 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
     out = NodeRun()
     got = threading.Condition()
     context = rclpy.Context()
-    rclpy.init(context=context)
-    node = LocalizerNode(run.map, config, None, logger, context=context)  # type: ignore[arg-type]
+    process = None
+    if separate is None:
+        rclpy.init(context=context)
+        node = LocalizerNode(run.map, config, None, logger, context=context)  # type: ignore[arg-type]
+        tolerance = node.transform_tolerance
+    else:
+        domain = 40 + os.getpid() % 50
+        process = subprocess.Popen(
+            [sys.executable, "-m", "fusion", "ros2", "--map", str(run.map_path), "--config",
+             separate], env={**os.environ, "ROS_DOMAIN_ID": str(domain)},
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        rclpy.init(context=context, domain_id=domain)
+        tolerance = 0.1  # the node's default transform_tolerance
     client = rclpy.create_node("houghloc_client", context=context)
 
     def on_pose(msg: PoseWithCovarianceStamped) -> None:
@@ -111,7 +129,7 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
 
     def on_tf(msg: TFMessage) -> None:
         for tf in msg.transforms:
-            scan_t = stamp_seconds(tf.header.stamp) - node.transform_tolerance - EPOCH
+            scan_t = stamp_seconds(tf.header.stamp) - tolerance - EPOCH
             out.tf[round(scan_t, 6)] = np.array(planar_transform(tf.transform))
 
     def on_state(msg: String) -> None:
@@ -119,31 +137,34 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
             out.states.append(msg.data)
             got.notify_all()
 
-    client.create_subscription(PoseWithCovarianceStamped, "houghloc/pose", on_pose, 100)
-    client.create_subscription(TFMessage, "/tf", on_tf, 100)
+    pose_sub = client.create_subscription(PoseWithCovarianceStamped, "houghloc/pose", on_pose,
+                                          100)
+    tf_sub = client.create_subscription(TFMessage, "/tf", on_tf, 100)
     every_state = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    client.create_subscription(String, "houghloc/state", on_state, every_state)
+    state_sub = client.create_subscription(String, "houghloc/state", on_state, every_state)
     scan_pub = client.create_publisher(LaserScan, "scan", 10)
     odom_pub = client.create_publisher(Odometry, "odom", 100)
     initial_pub = client.create_publisher(PoseWithCovarianceStamped, "initialpose", 10)
     static_pub = client.create_publisher(TFMessage, "/tf_static", LATCHED)
     executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+    if process is None:
+        executor.add_node(node)
     executor.add_node(client)
     spinner = threading.Thread(target=executor.spin, name="ros2-executor", daemon=True)
     spinner.start()
     sent_at: list[float] = [time.perf_counter()]
 
-    def wait(condition, what: str) -> None:
+    def wait(condition, what: str, seconds: float = timeout) -> None:
         with got:
-            if not got.wait_for(condition, timeout):
-                raise TimeoutError(f"the node did not answer in {timeout} s: {what}")
+            if not got.wait_for(condition, seconds):
+                raise TimeoutError(f"the node did not answer in {seconds} s: {what}")
 
     try:
         wait(lambda: all(p.get_subscription_count() for p in
-                         (scan_pub, odom_pub, initial_pub, static_pub, node.pose_pub,
-                          node.state_pub, node.tf_pub)), "discovery")
+                         (scan_pub, odom_pub, initial_pub, static_pub))
+             and all(s.get_publisher_count() for s in (pose_sub, tf_sub, state_sub)),
+             "discovery", 60.0 if process is not None else timeout)  # a cold start compiles
         static = TFMessage(transforms=[_transform(TransformStamped(), "base_footprint", "laser",
                                                   EPOCH + run.scan_t[0], MOUNT)])
         static_pub.publish(static)
@@ -182,13 +203,19 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
                                            next_odometry[1]))
                 last, next_odometry = next_odometry[0], next(odometry, None)
             wait(lambda e=expected: len(out.t) >= e, f"scan {k} at t = {t:.2f} s")
-            if k in resets and node.localizer is not None:
+            if k in resets and process is None and node.localizer is not None:
                 out.started_from[k] = np.array(node.localizer.initial_pose)
         out.seconds = time.perf_counter() - started
     finally:
         stopping = time.perf_counter()
         executor.shutdown(timeout_sec=timeout)
-        node.destroy_node()
+        if process is None:
+            node.destroy_node()
+        else:
+            process.send_signal(signal.SIGTERM)
+            _, err = process.communicate(timeout=20)
+            if process.returncode != 0:
+                raise RuntimeError(f"houghloc ros2 exited {process.returncode}: {err}")
         client.destroy_node()
         rclpy.shutdown(context=context)
         spinner.join(timeout)
@@ -269,6 +296,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
     parser.add_argument("--plot", metavar="PNG", help="draw the run (docs/images/ros2_node.png)")
     parser.add_argument("--rrd", metavar="FILE", help="record the node's run for Rerun")
+    parser.add_argument("--separate", action="store_true",
+                        help="the node as `houghloc ros2` in its own process, as on a robot")
     args = parser.parse_args(argv)
     try:
         import rclpy  # noqa: F401
@@ -285,7 +314,8 @@ def main(argv: list[str] | None = None) -> dict:
         from fusion.rerun_logger import RerunLogger
 
         logger = RerunLogger(args.rrd)
-    result = stream_through_node(run, ranges, config, resets=resets, logger=logger)
+    result = stream_through_node(run, ranges, config, resets=resets, logger=logger,
+                                 separate="office-laser" if args.separate else None)
     if logger is not None:
         logger.close()
     if args.plot:
@@ -300,8 +330,9 @@ def main(argv: list[str] | None = None) -> dict:
                "latency_ms_max": float(latency.max()),
                "ate_rmse_m": float(np.sqrt(np.mean(errors**2))),
                "shutdown_seconds": result.shutdown_seconds}
-    print(f"ROS 2 node, simulated office ({args.duration:.0f} s, {result.sent} scans sent, "
-          f"{len(result.t)} poses back)")
+    where = "in its own process" if args.separate else "in the client's process"
+    print(f"ROS 2 node {where}, simulated office ({args.duration:.0f} s, {result.sent} scans "
+          f"sent, {len(result.t)} poses back)")
     print(f"  through the node : {figures['scans_per_second']:7.0f} scans/s "
           f"(offline replay of the same run: {offline:.0f} scans/s; "
           f"{figures['scans_per_second'] / offline:.2f}×)")

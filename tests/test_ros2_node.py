@@ -190,3 +190,13 @@ def test_bad_messages_are_dropped_with_a_warning_and_the_node_goes_on() -> None:
     finally:
         node.destroy_node()
         rclpy.shutdown(context=context)
+
+
+def test_houghloc_ros2_in_its_own_process_localizes_the_run() -> None:
+    """As on a robot: `houghloc ros2` in a process of its own, the run published from this one."""
+    run, ranges = office_run(seconds=10.0, seed=7)
+    result = stream_through_node(run, ranges, LocalizerConfig(), separate="office-laser",
+                                 timeout=10.0)
+    assert len(result.t) == result.sent == len(run.scan_t)
+    assert np.sqrt(np.mean(result.errors(run) ** 2)) <= ATE_M
+    assert len(result.tf) >= 0.9 * len(result.t)
