@@ -48,6 +48,7 @@ bench-real: setup
 
 lint: setup
 	$(BIN)/ruff check houghloc fusion tests benchmarks notebooks
+	$(BIN)/mypy
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache

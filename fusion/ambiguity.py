@@ -34,6 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from fusion.hypotheses import BankVerdict, HypothesisBank, HypothesisConfig
 from fusion.tracker import PoseTracker
+from fusion.visualize import NullLogger
 from houghloc import (
     GlobalMatchConfig,
     GlobalResult,
@@ -226,7 +227,7 @@ class AmbiguityManager:
     _recent_fit: deque = field(init=False)
     _guess_fits: deque = field(init=False)
     _fix_fits: deque = field(init=False)
-    logger: object | None = None
+    logger: NullLogger | None = None
     # a filter at a pose with a covariance, for each followed hypothesis (the Localizer's own
     # settings); None: hypotheses are not followed by filters
     make_tracker: Callable[[NDArray, NDArray], PoseTracker] | None = None
@@ -321,10 +322,11 @@ class AmbiguityManager:
         as well as tracking did, no other pose in the neighbourhood scores as well (a corridor
         leaves the position along it open), and it is within reach of the odometry ``odom``'s
         motion since the last accepted fix (``local_reach_per_metre``)."""
-        lines = fix.lines
-        if lines is None or len(lines) < 2 or lines.members.shape[0] != len(points):
+        lines, radius = fix.lines, self.config.local_search_xy
+        if (lines is None or len(lines) < 2 or lines.members.shape[0] != len(points)
+                or fix.grid is None or fix.accumulator is None or radius is None):
             return Decision()
-        near = Neighbourhood(np.asarray(guess, float), self.config.local_search_xy,
+        near = Neighbourhood(np.asarray(guess, float), radius,
                              math.radians(self.config.local_search_theta_deg))
         # only the best three are polished below: refining more would be wasted
         local = self.config.global_match.model_copy(update={"max_refined": 3})
@@ -335,7 +337,7 @@ class AmbiguityManager:
         # Candidates: the matcher's poses (clustered by 5°, so each is polished by tracking from
         # it) and the guess turned and moved along its heading step by step (a slip in a turn,
         # an unreported reversal), each corrected by tracking from there.
-        sweep = _sweep(np.asarray(guess, float), self.config.local_search_xy,
+        sweep = _sweep(np.asarray(guess, float), radius,
                        math.radians(self.config.local_search_theta_deg))
         raw = self.fit_fractions(sweep, points, kinds)  # polish the promising ones only
         starts = [np.asarray(h.pose, float) for h in result.hypotheses[:3]]
@@ -429,7 +431,7 @@ class AmbiguityManager:
             return True
         if fraction is None:
             fraction = self.fit_fraction(pose, points, kinds)
-        if loss is not None and fraction < guess_fit - loss:
+        if loss is not None and guess_fit is not None and fraction < guess_fit - loss:
             self.counts["fit_losses"] += 1
             return False
         self._fix_fits.append(fraction)

@@ -15,7 +15,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from houghloc.geometry import compose, wrap_angle
+from houghloc.geometry import Pose, compose, wrap_angle
 from houghloc.matching import gate_threshold
 
 _FULL_BASIS = np.eye(3)
@@ -39,7 +39,7 @@ class UpdateOutcome:
 
 
 def motion_jacobians(
-    x: NDArray[np.float64], delta: ArrayLike
+    x: NDArray[np.float64], delta: Pose
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """F = ∂(x ⊕ δ)/∂x and G = ∂(x ⊕ δ)/∂δ, evaluated at the prior x."""
     c, s = math.cos(x[2]), math.sin(x[2])
@@ -88,7 +88,7 @@ class PoseEKF(ExtendedKalmanFilter):
         """x⁻ = x ⊕ δ: the nonlinear state prediction (filterpy's hook for it)."""
         self.x = compose(self.x, u)
 
-    def predict_odometry(self, delta: ArrayLike, q_delta: NDArray[np.float64]) -> None:
+    def predict_odometry(self, delta: Pose, q_delta: NDArray[np.float64]) -> None:
         """Predict with an odometry increment δ (robot frame) whose covariance is ``q_delta``.
 
         F and G are taken at the prior; filterpy then computes x⁻ = x ⊕ δ and

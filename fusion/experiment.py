@@ -4,6 +4,7 @@ the unit of the fusion experiments (tests, benchmarks, notebooks)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -64,8 +65,8 @@ class OutlierInjectingTracker(PoseTracker):
     gating experiments (pass it to :func:`localize_simulated`). Build it with
     ``OutlierInjectingTracker.from_config(config.filter, pose, fraction=…, seed=…)``."""
 
-    def __init__(self, *tracker_args: object, fraction: float, seed: int, shift: float = 1.0,
-                 **tracker_kwargs: object) -> None:
+    def __init__(self, *tracker_args: Any, fraction: float, seed: int, shift: float = 1.0,
+                 **tracker_kwargs: Any) -> None:
         super().__init__(*tracker_args, **tracker_kwargs)
         self.fraction, self.shift = fraction, shift
         self.rng = np.random.default_rng(seed)

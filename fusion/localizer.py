@@ -285,7 +285,7 @@ class Localizer:
         status, outcome = self._use_fix(t, fix, points, cfg, guess_fit, fix_fit)
         if status != "accepted":
             fix_fit = None
-        if self.manager.wants_local_search(guess_fit, fix_fit):
+        if guess_fit is not None and self.manager.wants_local_search(guess_fit, fix_fit):
             # tracking failed and the prediction no longer fits: the odometry slipped, or
             # reported a motion the robot did not make. Look for the pose near it first.
             t2 = perf_counter()
@@ -295,8 +295,8 @@ class Localizer:
                                                  self.tracker.odometry_at(t))
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)
-            if decision.reset_pose is not None and self.tracker.reset(decision.reset_pose,
-                                                                      decision.reset_cov):
+            if (decision.reset_pose is not None and decision.reset_cov is not None
+                    and self.tracker.reset(decision.reset_pose, decision.reset_cov)):
                 status, outcome = "re-searched", None
         else:
             self.stats.seconds["update"] += perf_counter() - t1
@@ -310,14 +310,16 @@ class Localizer:
     def _correct_odometry(self, t: float, points: NDArray) -> None:
         """The odometry at the scan corrected by matching it to the previous scan."""
         t0 = perf_counter()
-        correction = self.scan_odometry.match(t, points)
+        scan_odometry = self.scan_odometry
+        assert scan_odometry is not None  # called only with scan odometry on
+        correction = scan_odometry.match(t, points)
         if correction is not None:
             if self.tracker.correct_odometry(t, correction.pose, correction.since,
                                              correction.step_cov):
-                self.scan_odometry.commit(correction)
+                scan_odometry.commit(correction)
                 self.logger.log_odometry(t, correction.pose)  # the odometry path shows it
             else:
-                self.scan_odometry.skip(t, points)
+                scan_odometry.skip(t, points)
         self.stats.seconds["scan odometry"] = (self.stats.seconds.get("scan odometry", 0.0)
                                                + perf_counter() - t0)
 
@@ -355,7 +357,7 @@ class Localizer:
         if position is None or odom is None or self.manager.state is State.TRACKING:
             return
         decision = self.manager.landmark_step(t, odom, position, bearing, label)
-        if decision.reset_pose is not None:
+        if decision.reset_pose is not None and decision.reset_cov is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov)
 
     def _global_step(self, t: float, points: NDArray, sensor: str) -> Estimate:
@@ -368,7 +370,7 @@ class Localizer:
         kinds = self._sensor(sensor).hough.reference_kinds
         decision = self.manager.collecting_step(t, odom, points, kinds, self._sensor(sensor).hough)
         self.stats.seconds["global"] = self.stats.seconds.get("global", 0.0) + perf_counter() - t0
-        if decision.reset_pose is not None:
+        if decision.reset_pose is not None and decision.reset_cov is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov)
             return self._finish(t, "relocalized", None, None, sensor, points)
         leading = self.manager.leading_hypothesis

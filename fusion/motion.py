@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2
 
-from houghloc.geometry import compose, relative, wrap_scalar
+from houghloc.geometry import Pose, compose, relative, wrap_scalar
 
 # Below this, an increment is treated as exactly zero (a reading repeated by the driver).
 _ZERO_MOTION = 1e-12
@@ -95,7 +95,8 @@ class OdometryCalibration:
         else:
             self._calibrated = raw
         self._raw = raw
-        return tuple(self._calibrated.tolist())
+        x, y, theta = self._calibrated.tolist()
+        return x, y, theta
 
 
 class WheelScale:
@@ -185,7 +186,7 @@ class OdometryMotionModel:
     def __init__(self, config: OdometryMotionConfig | None = None) -> None:
         self.config = config or OdometryMotionConfig()
 
-    def noise(self, delta: ArrayLike) -> NDArray[np.float64]:
+    def noise(self, delta: Pose) -> NDArray[np.float64]:
         """Q: the 3×3 covariance of the increment δ = (dx, dy, dθ), in the robot frame.
 
         δ is decomposed into (rot1, trans, rot2), each gets an independent variance from the
@@ -225,7 +226,7 @@ class OdometryMotionModel:
             ]
         )
 
-    def is_jump(self, delta: ArrayLike, dt: float) -> bool:
+    def is_jump(self, delta: Pose, dt: float) -> bool:
         """True when δ is implausible for the interval ``dt``: faster than the limits allow
         (with the margin), or any motion at all over dt < 0. Equal stamps (dt = 0: coarse or
         repeated stamps) are judged as ``jump_min_dt`` apart: their motion is kept.
@@ -234,7 +235,7 @@ class OdometryMotionModel:
         counts it: a jump is a glitch or a reset of the odometry, not the robot's motion.
         """
         c = self.config
-        trans, dth = math.hypot(delta[0], delta[1]), float(delta[2])
+        trans, dth = math.hypot(float(delta[0]), float(delta[1])), float(delta[2])
         if dt < 0.0:
             return trans > _ZERO_MOTION or abs(dth) > _ZERO_MOTION
         dt_eff = max(dt, c.jump_min_dt)

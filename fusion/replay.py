@@ -112,8 +112,11 @@ def _signals_between_events() -> Iterator[Callable[[], None]]:
         yield lambda: None  # only the main thread receives signals
         return
     received: list[tuple[int, Any]] = []
-    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    handlers = {sig: h for sig, h in handlers.items() if callable(h)}
+    handlers: dict[int, Callable[[int, Any], Any]] = {}
+    for stop in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(stop)
+        if callable(handler):
+            handlers[int(stop)] = handler
 
     def record(signum: int, frame: Any) -> None:
         received.append((signum, frame))

@@ -678,7 +678,8 @@ class RerunLogger:
             ref_pixels = hough_pixels(grid, refs.theta, refs.rho)
             self._colours.ensure(ref_ids)
         ends = np.empty((0, 2, 2))
-        if len(peaks) and len(ref_ids) and matches is not None and len(matches):
+        if (len(peaks) and len(ref_ids) and matches is not None and len(matches)
+                and lines is not None and refs is not None):
             peak_rows[matches.line] = ref_ids[matches.ref]
             # the reference's θ taken nearest the peak's, so a pair across θ = 0 ≡ 2π is short
             theta_line = _own_row(grid, lines.theta[matches.line])
@@ -692,9 +693,10 @@ class RerunLogger:
         self._batch("hough/references", rr.Points2D).add(
             t, index, len(ref_ids), positions=ref_pixels, colors=table[ref_ids],
             labels=self._colours.label(ref_ids))
+        match_colours = (table[peak_rows[matches.line]] if len(ends) and matches is not None
+                         else np.empty((0, 4), np.uint8))
         self._batch("hough/matches", rr.LineStrips2D).add(
-            t, index, len(ends), strips=list(ends), colors=table[peak_rows[matches.line]]
-            if len(ends) else np.empty((0, 4), np.uint8))
+            t, index, len(ends), strips=list(ends), colors=match_colours)
 
     def _accumulator(self, t: float, index: int, votes: NDArray | None) -> None:
         """The vote image, batched like the time series but sent every ``IMAGE_BATCH`` images

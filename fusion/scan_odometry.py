@@ -316,6 +316,7 @@ class ScanOdometry:
         if self._points is None:
             self.skip(t, points)
             return None
+        assert self._anchor is not None and self._anchor_wheels is not None  # set with _points
         raw_step = increment(self._anchor_wheels, self._wheels)
         wheel_step = self._scaled(raw_step)
         icp = self._align(points, wheel_step)
@@ -363,6 +364,8 @@ class ScanOdometry:
         return best
     def _corrected_wheels(self) -> NDArray[np.float64]:
         """The newest wheel reading in the corrected frame: chained onto the reference scan."""
+        assert self._anchor is not None and self._anchor_wheels is not None
+        assert self._wheels is not None
         return compose(self._anchor, self._scaled(increment(self._anchor_wheels, self._wheels)))
 
     def _scaled(self, step: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -135,12 +135,12 @@ class PoseTracker:
     @property
     def pose(self) -> NDArray[np.float64]:
         """The newest estimate (x, y, θ) in ``map`` (a copy)."""
-        return (self._estimate(-1).x if self._nodes else self._x).copy()
+        return (self._state(-1)[0] if self._nodes else self._x).copy()
 
     @property
     def cov(self) -> NDArray[np.float64]:
         """The newest covariance P (a copy)."""
-        return (self._estimate(-1).p if self._nodes else self._p).copy()
+        return (self._state(-1)[1] if self._nodes else self._p).copy()
 
     @property
     def time(self) -> float | None:
@@ -164,6 +164,7 @@ class PoseTracker:
             return None
         j = bisect_right(self._nodes, t, key=_node_time) - 1
         node = self._estimate(j)
+        assert node.x is not None and node.p is not None  # _estimate computes them
         if j == len(self._nodes) - 1 or t == node.t:
             return node.x.copy(), node.p.copy()
         _, step, q = self._split(node, self._nodes[j + 1], t)
@@ -396,6 +397,7 @@ class PoseTracker:
     def _load(self, node: _Node) -> None:
         # The engine never modifies these arrays in place (filterpy assigns new ones), so the
         # node's arrays can be handed over without copies.
+        assert node.x is not None and node.p is not None  # only computed nodes are loaded
         self._ekf.x, self._ekf.P = node.x, node.p
 
     def _propagate(self, prev: _Node, node: _Node) -> None:
@@ -428,6 +430,12 @@ class PoseTracker:
         nodes = self._nodes
         for i in range(start, len(nodes)):
             nodes[i].x = nodes[i].p = None
+
+    def _state(self, j: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(x, P) of node ``j``, computed if it was not yet."""
+        node = self._estimate(j)
+        assert node.x is not None and node.p is not None  # _estimate computes them
+        return node.x, node.p
 
     def _estimate(self, j: int) -> _Node:
         """Node ``j`` with its estimate computed: from the nearest computed node before it, one

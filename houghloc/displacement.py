@@ -54,6 +54,7 @@ class Displacement:
         if self.matches is None or len(self.matches) == 0:
             return np.zeros(0)
         c, r = self.matches.cov, self.matches.residual
+        assert self.beta is not None  # set with the matches
         post_0 = r[:, 0] + self.delta[2]  # the residual after the correction: r − J Δ
         post_1 = r[:, 1] + np.cos(self.beta) * self.delta[0] + np.sin(self.beta) * self.delta[1]
         det = c[:, 0, 0] * c[:, 1, 1] - c[:, 0, 1] ** 2
@@ -85,7 +86,7 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
     phi = 0.5 * math.atan2(2.0 * bb, a - d)  # direction of the larger eigenvalue
     dirs = ((-math.sin(phi), math.cos(phi)), (math.cos(phi), math.sin(phi)))
     basis = [(0.0, 0.0, 1.0)]
-    blind = []
+    blind: list[tuple[float, float, float]] = []
     for lam_k, (vx, vy) in zip(lam, dirs, strict=True):
         (basis if lam_k > 1.0 / max_observable_sigma**2 else blind).append((vx, vy, 0.0))
     u = np.array(basis).T

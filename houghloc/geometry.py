@@ -6,6 +6,7 @@ A pose is ``(x, y, θ)``: the position of ``base`` in ``map`` and its heading. A
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -13,6 +14,9 @@ from numpy.typing import ArrayLike, NDArray
 from houghloc.jit import njit
 
 TWO_PI = 2.0 * np.pi
+
+Pose = Sequence[float] | NDArray[np.float64]
+"""One pose or increment (x, y, θ) that is read number by number: a tuple, list or array."""
 
 
 def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:

@@ -347,8 +347,8 @@ def _build_angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float
     beta = np.concatenate((map.line_alpha[lines], map.line_alpha[lines] + np.pi))
     r = np.concatenate((map.line_r[lines], -map.line_r[lines]))
     line = np.concatenate((lines, lines))
-    a, b = np.meshgrid(np.arange(len(beta)), np.arange(len(beta)), indexing="ij")
-    a, b = a.ravel(), b.ravel()
+    grid_a, grid_b = np.meshgrid(np.arange(len(beta)), np.arange(len(beta)), indexing="ij")
+    a, b = grid_a.ravel(), grid_b.ravel()
     delta = np.mod(beta[b] - beta[a], TWO_PI)
     keep = (line[a] != line[b]) & (np.abs(np.sin(delta)) >= math.sin(min_angle))
     a, b, delta = a[keep], b[keep], delta[keep]
@@ -470,9 +470,9 @@ def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
     scores = point_scores(cells, pts_s, members_s, walls, config)
     keep = cluster(cells, scores.score, config)[: config.max_refined]
     reach = scan_reach(pts)
-    hyps = [_refined(cells[j], lines, reach, pts_s, members_s, map, walls, kinds, config)
-            for j in keep]
-    hyps = [h for h in hyps if h is not None and _valid(h, config)]
+    refined = [_refined(cells[j], lines, reach, pts_s, members_s, map, walls, kinds, config)
+               for j in keep]
+    hyps = [h for h in refined if h is not None and _valid(h, config)]
     if not hyps:
         return GlobalResult(reason=f"no hypothesis explains {config.min_lines_explained} "
                             "non-parallel lines", n_candidates=n_candidates)
@@ -592,9 +592,9 @@ def _match_sliding(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMa
     # the weighted fit ranks the clusters: a plain count is flat around the true s
     keep = cluster(cells, peak_fit, config)[: config.max_refined]
     reach = scan_reach(pts)
-    hyps = [_slid(cells[j], lines, reach, pts_s, members_s, map, walls, kinds, config)
+    slid = [_slid(cells[j], lines, reach, pts_s, members_s, map, walls, kinds, config)
             for j in keep]
-    hyps = [h for h in hyps if h is not None and _valid(h, config)]
+    hyps = [h for h in slid if h is not None and _valid(h, config)]
     if not hyps:
         return GlobalResult(reason="sliding: no pose explains two parallel lines",
                             n_candidates=len(coarse))
@@ -678,11 +678,10 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
     lo = np.searchsorted(index.delta, d_obs - tol, side="left")
     hi = np.searchsorted(index.delta, d_obs + tol, side="right")
     counts = _within_budget(hi - lo, config.max_pair_hypotheses)
-    use_near = near is not None
     return _pair_poses(lines.theta, lines.rho, pair_i, pair_k, lo, counts, index.beta_a,
-                       index.beta_b, index.r_a, index.r_b, index.n_inv, use_near,
-                       near.pose[2] if use_near else 0.0,
-                       near.radius_theta if use_near else 0.0, float(tol.max()))
+                       index.beta_b, index.r_a, index.r_b, index.n_inv, near is not None,
+                       near.pose[2] if near is not None else 0.0,
+                       near.radius_theta if near is not None else 0.0, float(tol.max()))
 
 
 @njit

@@ -9,7 +9,7 @@ ahead of a stream (``houghloc`` calls it before the first scan of a run).
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numba
 from numba.core import types
@@ -21,22 +21,28 @@ from numba.core.extending import intrinsic
 njit: Callable[..., Any] = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
-@intrinsic
-def fma(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
-    """a·b + c rounded once (IEEE fused multiply-add), in the type of ``a``.
+if TYPE_CHECKING:  # what the kernels call; Numba types the intrinsic below
 
-    BLAS computes a two-term product x·c + y·s as fma(y, s, x·c): the kernels that replace such
-    a product use the same rounding, so a vote or an inlier test decided at a cell's edge falls
-    on the same side as in the matrix form.
-    """
-    if not (isinstance(a, types.Float) and a == b == c):
-        return None
-    sig = a(a, b, c)
+    def fma(a: float, b: float, c: float) -> float: ...
 
-    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
-        return builder.fma(*args)
+else:
 
-    return sig, codegen
+    @intrinsic
+    def fma(typingctx: Any, a: Any, b: Any, c: Any) -> Any:
+        """a·b + c rounded once (IEEE fused multiply-add), in the type of ``a``.
+
+        BLAS computes a two-term product x·c + y·s as fma(y, s, x·c): the kernels that replace such
+        a product use the same rounding, so a vote or an inlier test decided at a cell's edge falls
+        on the same side as in the matrix form.
+        """
+        if not (isinstance(a, types.Float) and a == b == c):
+            return None
+        sig = a(a, b, c)
+
+        def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+            return builder.fma(*args)
+
+        return sig, codegen
 
 
 _warmed_up: float | None = None

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -136,7 +137,8 @@ def localize_scan(
         return _empty(guess, f"too few points: {len(points)}{dropped}", n_points=len(points))
 
     grid, acc, lines = observed if observed is not None else observe_lines(points, config)
-    stages = {"n_points": len(points), "grid": grid, "accumulator": acc, "lines": lines}
+    stages: dict[str, Any] = {"n_points": len(points), "grid": grid, "accumulator": acc,
+                              "lines": lines}
     if len(lines) == 0:
         return _empty(guess, f"no line in the scan{dropped}", **stages)
     max_range = config.max_range or scan_reach(points)

@@ -12,6 +12,7 @@ Seen from a pose, a line becomes the robot-frame Hough point (θ_r, ρ_r) with �
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -22,7 +23,7 @@ from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 from scipy.spatial import cKDTree
 
-from houghloc.geometry import TWO_PI, ray_segment_distances
+from houghloc.geometry import TWO_PI, Pose, ray_segment_distances
 from houghloc.jit import njit
 from houghloc.yaml_io import read_yaml
 
@@ -117,8 +118,8 @@ class SegmentMap:
         self,
         starts: ArrayLike,
         ends: ArrayLike,
-        kinds: list[str] | None = None,
-        ids: list[str] | None = None,
+        kinds: Sequence[str] | None = None,
+        ids: Sequence[str] | None = None,
         name: str = "unnamed",
         collinear_angle_tol: float = math.radians(0.5),
         collinear_dist_tol: float = 0.02,
@@ -298,7 +299,7 @@ class SegmentMap:
     # ---------------------------------------------------------------- references
     def references(
         self,
-        pose: ArrayLike,
+        pose: Pose,
         max_range: float,
         kinds: tuple[str, ...] = ("wall",),
         n_rays: int = 180,

@@ -40,11 +40,11 @@ class HoughGrid:
 
     @property
     def thetas(self) -> NDArray[np.float64]:
-        return np.arange(self.n_theta) * self.theta_step
+        return np.arange(self.n_theta, dtype=np.float64) * self.theta_step
 
     @property
     def rhos(self) -> NDArray[np.float64]:
-        return self.rho_min + (np.arange(self.n_rho) + 0.5) * self.rho_step
+        return self.rho_min + (np.arange(self.n_rho, dtype=np.float64) + 0.5) * self.rho_step
 
     def cell_center(self, i_theta: NDArray, i_rho: NDArray) -> tuple[NDArray, NDArray]:
         return i_theta * self.theta_step, self.rho_min + (i_rho + 0.5) * self.rho_step

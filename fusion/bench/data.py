@@ -206,7 +206,8 @@ class RunData:
             if not have:
                 raise ValueError(f"{spec.log}: no reference poses (not a corrected log); give "
                                  "`reference`")
-            return Trajectory([scan_stamp(s) for s in have], [s.reference for s in have])
+            return Trajectory(np.array([scan_stamp(s) for s in have]),
+                              np.array([s.reference for s in have]))
         if _is_tum(spec.reference):
             return Trajectory.from_tum(spec.reference)
         same = spec.reference.resolve() == spec.log.resolve()

@@ -120,7 +120,7 @@ def _predict_and_correct(piece: Piece, correct: Callable[[NDArray[np.float64], S
             pose = correct(compose(pose, odom.step()), e)
             t.append(scan_stamp(e))
             poses.append(pose)
-    return Localized(Trajectory(t, np.asarray(poses).reshape(-1, 3)),
+    return Localized(Trajectory(np.array(t), np.asarray(poses).reshape(-1, 3)),
                      time.process_time() - cpu)
 
 
@@ -175,7 +175,7 @@ def _matrix_to_se2(m: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array((m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])))
 
 
-AMCL_NAV2 = {
+AMCL_NAV2: dict[str, Any] = {
     "min_particles": 500, "max_particles": 2000, "alpha_slow": 0.0, "alpha_fast": 0.0,
     "alpha": (0.2, 0.2, 0.2, 0.2, 0.2), "z_hit": 0.5, "z_short": 0.05, "z_max": 0.05,
     "z_rand": 0.5, "sigma_hit": 0.2, "lambda_short": 0.1, "chi_outlier": 0.05, "max_beams": 60,
@@ -224,7 +224,7 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
         assert last_update_odom is not None
         t.append(scan_stamp(e))
         poses.append(compose(at_update, relative(last_update_odom, odom)))
-    return Localized(Trajectory(t, np.asarray(poses).reshape(-1, 3)),
+    return Localized(Trajectory(np.array(t), np.asarray(poses).reshape(-1, 3)),
                      time.process_time() - cpu)
 
 

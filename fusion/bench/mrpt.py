@@ -33,7 +33,7 @@ from fusion.bench.data import Piece, scan_stamp
 from fusion.config import SensorConfig
 from fusion.evaluation import Trajectory
 from fusion.events import Odometry, Scan
-from houghloc.geometry import compose, relative
+from houghloc.geometry import Pose, compose, relative
 
 PROGRAMS = ("pf-localization", "carmen2rawlog", "carmen2simplemap")
 START_BOX_XY = 0.3
@@ -75,7 +75,7 @@ def run_pf_localization(piece: Piece, sensor: SensorConfig, timeout: float = 720
         tail = (done.stdout + done.stderr).strip().splitlines()[-3:]
         raise RuntimeError(f"pf-localization gave {len(found)} poses for {len(scans)} scans "
                            f"(exit {done.returncode}): {' / '.join(tail)}")
-    return Trajectory([scan_stamp(s) for s in scans], np.asarray(found)), cpu
+    return Trajectory(np.array([scan_stamp(s) for s in scans]), np.asarray(found)), cpu
 
 
 def _odometry_records(piece: Piece) -> Iterable[tuple[Scan, tuple[float, float, float]]]:
@@ -92,10 +92,11 @@ def _odometry_records(piece: Piece) -> Iterable[tuple[Scan, tuple[float, float, 
             yield e, tuple(compose(start, relative(first, now)).tolist())
 
 
-def _write_carmen(path: Path, records: Iterable[tuple[Scan, object]]) -> None:
+def _write_carmen(path: Path, records: Iterable[tuple[Scan, Pose | None]]) -> None:
     with path.open("w") as f:
         for scan, pose in records:
-            x, y, th = pose  # type: ignore[misc]
+            assert pose is not None  # the map's scans are corrected ones
+            x, y, th = (float(v) for v in pose)
             angles = np.asarray(scan.angles, dtype=float)
             n = len(angles)
             step = (angles[-1] - angles[0]) / (n - 1) if n > 1 else 0.0

@@ -43,7 +43,7 @@ def expand(spec: SweepSpec) -> list[Task]:
     are left out."""
     from fusion.bench.spec import Method
 
-    tasks = []
+    tasks: list[Task] = []
     for run in spec.runs:
         for protocol in spec.protocols:
             if protocol is Protocol.HELD_OUT_MAP and run.build_from is None:

@@ -121,12 +121,18 @@ class FlaserSpacing(StrEnum):
     PI_OVER_N = "pi/n"
 
 
+def _odometry(t: float, pose: NDArray[np.float64], line: int | None,
+              unmeasured: float = 0.0) -> Odometry:
+    x, y, theta = pose.tolist()
+    return Odometry(t, x, y, theta, line=line, unmeasured=unmeasured)
+
+
 def flaser_angles(n: int, spacing: FlaserSpacing = FlaserSpacing.PI_OVER_N) -> NDArray[np.float64]:
     """Beam angles (robot frame, radians) of an n-beam ``FLASER`` record."""
     if spacing == FlaserSpacing.ENDPOINTS:
         angles = np.linspace(-np.pi / 2, np.pi / 2, n)
     else:
-        angles = -np.pi / 2 + np.arange(n) * (np.pi / n)
+        angles = -np.pi / 2 + np.arange(n, dtype=np.float64) * (np.pi / n)
     angles.flags.writeable = False  # shared between all scans with the same n
     return angles
 
@@ -350,7 +356,7 @@ class _CarmenParser:
         _need(tokens, 9, "ODOM")
         pose = _pose(tokens, 1)
         if not self.corrected:
-            return [Odometry(_time(tokens[7]), *pose.tolist(), line=number)]
+            return [_odometry(_time(tokens[7]), pose, number)]
         laser_pose, self._laser_pose = self._laser_pose, None
         if laser_pose is not None and np.array_equal(pose, laser_pose):
             # The re-anchoring line right after a laser record repeats its corrected pose. Its
@@ -366,10 +372,11 @@ class _CarmenParser:
             raw = pose
         else:
             base = self._anchor if self._anchor is not None else self._prev_logged
+            assert base is not None  # logged with the first raw pose
             raw = compose(self._raw, relative(base, pose))
         self._raw, self._prev_logged, self._anchor = raw, pose, None
         self._raw_t = t
-        return [Odometry(t, *raw.tolist(), line=number)]
+        return [_odometry(t, raw, number)]
 
     def _flaser(self, tokens: list[str], number: int) -> list[Event]:
         n = _count(tokens[1], "beam count")
@@ -405,8 +412,9 @@ class _CarmenParser:
         t = _time(tokens[k + 11])
         angles = self._angles.get((start, resolution, n))
         if angles is None:
-            angles = self._angles[(start, resolution, n)] = start + resolution * np.arange(n)
+            angles = start + resolution * np.arange(n, dtype=np.float64)
             angles.flags.writeable = False
+            self._angles[(start, resolution, n)] = angles
         if n > 1 and abs(angles[-1] - start - fov) > resolution + 1e-6:
             raise _BadRecord(f"field of view {fov:g} disagrees with {n} beams × {resolution:g}")
         limit = min(max_range, self.source.no_return_range) if max_range > 0 else None
@@ -429,7 +437,7 @@ class _CarmenParser:
             # The ODOM line before a laser record normally carries its time; when the last one
             # is older, the motion from it to the laser record ends in the re-anchoring jump
             # and is lost with it: say so at the scan, so the filter knows before it matches.
-            hole = [Odometry(t, *self._raw.tolist(), line=number, unmeasured=t - self._raw_t)]
+            hole = [_odometry(t, self._raw, number, unmeasured=t - self._raw_t)]
             self._raw_t = t
         scan = Scan(
             t,
@@ -440,7 +448,7 @@ class _CarmenParser:
             line=number,
         )
         if self.laser_odometry:
-            return [Odometry(t, *odom.tolist()), scan]
+            return [_odometry(t, odom, None), scan]
         return [*hole, scan]
 
     def _truepos(self, tokens: list[str]) -> list[Event]:

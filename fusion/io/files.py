@@ -21,7 +21,7 @@ def atomic_file(path: str | Path, mode: str = "w", encoding: str = "utf-8") -> I
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    text = {} if "b" in mode else {"encoding": encoding, "newline": ""}
+    text: dict[str, Any] = {} if "b" in mode else {"encoding": encoding, "newline": ""}
     try:
         with os.fdopen(fd, mode, **text) as f:
             yield f

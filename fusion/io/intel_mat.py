@@ -84,12 +84,12 @@ def in_order_times(t: NDArray[np.float64]) -> NDArray[np.float64]:
         else:
             tails[k], tail_row[k] = t[i], i
         prev[i] = tail_row[k - 1] if k else -1
-    keep = []
+    chain = []
     i = tail_row[-1]
     while i >= 0:
-        keep.append(i)
+        chain.append(i)
         i = prev[i]
-    keep = np.array(keep[::-1])
+    keep = np.array(chain[::-1])
     out = t.copy()
     out[finite] = np.interp(finite, keep, t[keep])
     return out

@@ -154,7 +154,7 @@ def render_map_png(grid: OccupancyGrid, segment_map: SegmentMap, path: str | Pat
               interpolation="nearest")
     colours = _segment_colours(len(segment_map))
     lines = np.stack((segment_map.starts, segment_map.ends), axis=1)
-    ax.add_collection(LineCollection(lines, colors=colours, linewidths=1.2))
+    ax.add_collection(LineCollection(list(lines), colors=colours, linewidths=1.2))
     ax.set_aspect("equal")
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)

@@ -140,7 +140,7 @@ def read_reference_scans(path: str | Path, max_scans: int | None = None) -> list
 def scan_endpoints(scans: Iterable[Scan], max_range: float = DEFAULT_MAX_RANGE) -> NDArray:
     """World endpoints (N×2) of all returns shorter than ``max_range``, at the reference poses."""
     chunks = [
-        transform_points(scan.reference, ranges_to_points(
+        transform_points(_reference(scan), ranges_to_points(
             scan.ranges, scan.angles, max_range=min(max_range, scan.max_range)))
         for scan in scans
     ]
@@ -230,6 +230,13 @@ class _BeamGeometry:
     free_polygon: NDArray[np.float64]
 
 
+def _reference(scan: Scan) -> tuple[float, float, float]:
+    """The corrected pose a map is built from (a corrected log gives every scan one)."""
+    if scan.reference is None:
+        raise ValueError(f"scan at t = {scan.t}: no corrected pose to build a map from")
+    return scan.reference
+
+
 def _beam_geometry(scan: Scan, max_range: float) -> _BeamGeometry:
     r = np.asarray(scan.ranges, dtype=float)
     usable = np.isfinite(r) & (r > 0) & (r < scan.max_range)
@@ -239,7 +246,7 @@ def _beam_geometry(scan: Scan, max_range: float) -> _BeamGeometry:
     r_free = np.where(usable, np.minimum(r, max_range), 0.0)
     a = np.asarray(scan.angles, dtype=float)
     local = np.column_stack((r_free * np.cos(a), r_free * np.sin(a)))
-    polygon = transform_points(scan.reference, np.vstack(([0.0, 0.0], local)))
+    polygon = transform_points(_reference(scan), np.vstack(([0.0, 0.0], local)))
     return _BeamGeometry(hits=polygon[1:][is_hit], free_polygon=polygon)
 
 

@@ -100,4 +100,4 @@ def _read_ros_image(yaml_path: Path, image_path: Path) -> NDArray[np.uint8]:
     if pixels.ndim == 3:
         # map_server averages the colour channels (an alpha channel is ignored).
         pixels = pixels[..., :3].mean(axis=2).round().astype(np.uint8)
-    return pixels
+    return np.asarray(pixels, dtype=np.uint8)

@@ -109,9 +109,9 @@ def _detect_candidates(grid: OccupancyGrid) -> _Lines:
     # Walls in a grid built from scans are jagged chains of cells; LSD needs level lines that
     # agree in orientation, which a blur over a few cells gives (on the raw binary image it
     # finds only short, straight stretches). The blur's edges sit beside the wall: refined later.
-    image = cv2.GaussianBlur(image, (0, 0), _CANDIDATE_BLUR_CELLS)
+    blurred = cv2.GaussianBlur(image, (0, 0), _CANDIDATE_BLUR_CELLS)
     detector = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD, scale=1.0)
-    found = detector.detect(image)[0]
+    found = detector.detect(blurred)[0]
     if found is None:
         return _lines_from_ends(np.empty((0, 2)), np.empty((0, 2)))
     uv = found.reshape(-1, 4).astype(float)

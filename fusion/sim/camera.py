@@ -16,12 +16,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from fusion.sim.config import CameraConfig
 from fusion.sim.laser import CLUTTER, MOVING_OBSTACLE, SPURIOUS, visible_walls
 from fusion.sim.raycast import ray_disc_distances
-from houghloc.geometry import ray_segment_distances
+from houghloc.geometry import Pose, ray_segment_distances
 from houghloc.segment_map import SegmentMap
 
 FloatArray = NDArray[np.float64]
@@ -62,7 +62,7 @@ def _sample_disc_rims(discs: FloatArray, origin: FloatArray, spacing: float,
     return pts[facing], disc[facing]
 
 
-def camera_points(m: SegmentMap, pose: ArrayLike, rng: np.random.Generator,
+def camera_points(m: SegmentMap, pose: Pose, rng: np.random.Generator,
                   cfg: CameraConfig | None = None, obstacles: FloatArray | None = None,
                   clutter: FloatArray | None = None) -> CameraFrame:
     """Simulate one camera frame from ``pose`` (map frame); see the module docstring.

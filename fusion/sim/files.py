@@ -62,7 +62,7 @@ LASER_TYPE_SIMULATED = 3
 _BLOCK = 4096  # records turned into Python values at a time while writing
 
 
-def _atomic_write(path: Path, write: Callable[[IO[str]], None]) -> Path:
+def _atomic_write(path: Path, write: Callable[[IO[str]], object]) -> Path:
     """Write through :func:`~fusion.io.files.atomic_file`: a reader never sees a half-written
     file."""
     with atomic_file(path) as f:

@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.sim.config import LaserConfig
 from fusion.sim.raycast import ray_disc_distances
-from houghloc.geometry import compose, ray_segment_distances
+from houghloc.geometry import Pose, compose, ray_segment_distances
 from houghloc.segment_map import SegmentMap
 
 FloatArray = NDArray[np.float64]
@@ -82,7 +82,7 @@ class Occluders:
         return Occluders(self.starts[keep], self.ends[keep], self.labels[keep], self.map_size)
 
 
-def true_ranges(m: SegmentMap, pose: ArrayLike, angles: FloatArray, max_range: float,
+def true_ranges(m: SegmentMap, pose: Pose, angles: FloatArray, max_range: float,
                 discs: FloatArray | None = None, clutter: FloatArray | None = None,
                 occluders: Occluders | None = None) -> tuple[FloatArray, NDArray[np.int16]]:
     """Noise-free first-hit distances and labels of the beams (``inf``/−1 beyond ``max_range``).
@@ -135,7 +135,7 @@ def corrupt_ranges(r_true: FloatArray, labels: NDArray[np.int16], cfg: LaserConf
     return r, labels
 
 
-def laser_scan(m: SegmentMap, pose: ArrayLike, rng: np.random.Generator,
+def laser_scan(m: SegmentMap, pose: Pose, rng: np.random.Generator,
                cfg: LaserConfig | None = None, obstacles: FloatArray | None = None,
                clutter: FloatArray | None = None) -> LaserScan:
     """Simulate one scan from ``pose`` (map frame).

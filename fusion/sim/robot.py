@@ -20,6 +20,7 @@ equal the true ones exactly. A kidnap moves the true pose between two steps with
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,7 +47,7 @@ class Trajectory:
 
 
 def drive(route: Route, cfg: RobotConfig, dt: float, n_steps: int,
-          kidnaps: list[Kidnap] = (), start_pose: FloatArray | None = None) -> Trajectory:
+          kidnaps: Sequence[Kidnap] = (), start_pose: FloatArray | None = None) -> Trajectory:
     """Integrate the controller for ``n_steps`` poses (the first is the start pose).
 
     Kidnap k is applied between the step at which ``t = k.t`` is reached (t measured from the

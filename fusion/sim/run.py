@@ -161,7 +161,7 @@ def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
 
     dt = 1.0 / cfg.odom_rate
     n_steps = math.floor(cfg.duration * cfg.odom_rate + 1e-9) + 1
-    odom_t = cfg.start_time + np.arange(n_steps) * dt
+    odom_t = cfg.start_time + np.arange(n_steps, dtype=np.float64) * dt
 
     route = make_route(m, cfg.route, rng_route, length=1.2 * cfg.robot.v_max * cfg.duration + 5)
     _check_kidnaps(cfg)

@@ -21,6 +21,7 @@ from fusion.sim.config import CameraConfig, LaserConfig
 from fusion.sim.laser import MOVING_OBSTACLE, NO_RETURN, true_ranges
 from fusion.sim.raycast import min_distance
 from fusion.sim.world import obstacle_segments
+from houghloc.geometry import Pose
 from houghloc.segment_map import SegmentMap
 
 FloatArray = NDArray[np.float64]
@@ -30,7 +31,7 @@ _ROBOT_RADIUS = 0.25
 
 def place_obstacles_near(
     m: SegmentMap,
-    pose: ArrayLike,
+    pose: Pose,
     rng: np.random.Generator,
     n: int,
     sensor: LaserConfig | CameraConfig | None = None,
