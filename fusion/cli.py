@@ -281,15 +281,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     config = LocalizerConfig.from_yaml(args.config)
     segment_map = SegmentMap.from_yaml(find_map(args.map))
     events, read_stats, sim_gt, config = _open_log(args, config)
-    initial_pose = args.initial_pose if args.initial_pose is not None else config.initial_pose
+    initial_pose = _initial_pose(args, config)
     if initial_pose is not None:
         from fusion.io import from_first_scan
 
         events = from_first_scan(events)
     gt_path = args.gt or sim_gt
     reference = Trajectory.from_tum(gt_path) if gt_path else None
-    if initial_pose is not None and not all(math.isfinite(v) for v in initial_pose):
-        raise CliError("--initial-pose must be three finite numbers")
     args.out.mkdir(parents=True, exist_ok=True)
     logger = _make_logger(args, args.out / "run.rrd")
     if reference is not None and not isinstance(logger, NullLogger):
@@ -461,18 +459,14 @@ def cmd_ros2(args: argparse.Namespace) -> int:
                        f"({exc})") from None
     config = LocalizerConfig.from_yaml(args.config)
     segment_map = SegmentMap.from_yaml(find_map(args.map))
-    initial_pose = args.initial_pose if args.initial_pose is not None else config.initial_pose
-    if initial_pose is not None and not all(math.isfinite(v) for v in initial_pose):
-        raise CliError("--initial-pose must be three finite numbers")
+    initial_pose = _initial_pose(args, config)
     logger: Any = NullLogger()
     if args.rrd is not None or args.serve:
         from fusion.rerun_logger import RerunLogger
 
         logger = RerunLogger(args.rrd, serve=args.serve)
     try:
-        return run_node(segment_map, config,
-                        None if initial_pose is None else np.asarray(initial_pose, float),
-                        logger, args.ros_args)
+        return run_node(segment_map, config, initial_pose, logger, args.ros_args)
     finally:
         logger.close()
 
@@ -502,10 +496,20 @@ def cmd_map_build(args: argparse.Namespace) -> int:
 
 
 # -------------------------------------------------------------------------------------- helpers
+def _initial_pose(args: argparse.Namespace, config: Any) -> np.ndarray | None:
+    """--initial-pose, else the config's ``initial_pose``, else None (global localization)."""
+    pose = args.initial_pose if args.initial_pose is not None else config.initial_pose
+    if pose is None:
+        return None
+    if not all(math.isfinite(v) for v in pose):
+        raise CliError("--initial-pose must be three finite numbers")
+    return np.asarray(pose, dtype=float)
+
+
 def _open_log(args: argparse.Namespace, config: Any) -> tuple[Any, Any, Path | None, Any]:
     """Events, read statistics, the ground truth a simulator directory carries, and the
     configuration with what the log says of the sensor (a ROS bag's ``/tf_static`` mount)."""
-    from fusion.io import StrayStampFilter, is_rosbag, open_log, read_rosbag
+    from fusion.io import is_rosbag, open_log, read_rosbag
 
     path = args.log
     if not is_rosbag(path):
@@ -525,7 +529,9 @@ def _open_log(args: argparse.Namespace, config: Any) -> tuple[Any, Any, Path | N
              if mount is not None else "no /tf_static mount: the config's"))
     if mount is not None:
         config = config.with_mount(config.laser, mount)
-    return iter(StrayStampFilter(iter(bag), bag.stats, name=str(path))), bag.stats, None, config
+    events, stats = open_log(path, scan_topic=args.scan_topic, odometry_topic=args.odom_topic,
+                             sensor=config.laser)
+    return events, stats, None, config
 
 
 def _make_logger(args: argparse.Namespace, path: Path):

@@ -8,6 +8,7 @@ runs; it needs the wheels from PyPI, CMake and a C compiler for tf2_msgs).
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import subprocess
@@ -80,8 +81,10 @@ def test_map_to_odom_puts_the_odometry_on_the_pose(through_node):
 
 
 def test_the_node_shuts_down_cleanly(through_node):
+    """The stream stops the executor, destroys both nodes and shuts the context down; it raises
+    when the executor's thread is still alive after that (a hang guard, not a speed limit)."""
     _, result, _ = through_node
-    assert result.shutdown_seconds < 5.0  # (the stream raises when the executor does not stop)
+    assert math.isfinite(result.shutdown_seconds)
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -163,7 +166,10 @@ def test_bad_messages_are_dropped_with_a_warning_and_the_node_goes_on() -> None:
         bad_mount = TransformStamped()
         bad_mount.header.frame_id, bad_mount.child_frame_id = "base_footprint", "laser"
         bad_mount.transform.translation.x = float("nan")
-        node._on_tf_static(TFMessage(transforms=[bad_mount]))
+        no_rotation = TransformStamped()
+        no_rotation.header.frame_id, no_rotation.child_frame_id = "base_footprint", "laser"
+        no_rotation.transform.rotation.w = 0.0  # a quaternion of zero length
+        node._on_tf_static(TFMessage(transforms=[bad_mount, no_rotation]))
         node._on_initial_pose(initial([np.nan, 0.0, 0.0]))  # dropped
         node._on_initial_pose(initial([1e7, -1e7, 0.0], cov=(-1.0, 1e30, 1e30)))
         t0 = EPOCH + run.scan_t[0]

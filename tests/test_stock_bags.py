@@ -176,3 +176,22 @@ def test_topics_are_chosen_by_name_or_as_the_only_one(office, tmp_path, capsys):
     assert main([*args, "--scan-topic", "/front"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "/wheel/odom (nav_msgs/msg/Odometry)" in err
+
+
+def test_static_transforms_that_are_no_rigid_motion_are_ignored() -> None:
+    """A zero quaternion or a NaN in /tf_static (a broken URDF) is left out, not raised."""
+    from types import SimpleNamespace as NS
+
+    from fusion.io.rosbag import StaticTree
+
+    def tf(parent, child, x, q):
+        return NS(header=NS(frame_id=parent), child_frame_id=child,
+                  transform=NS(translation=NS(x=x, y=0.0, z=0.0),
+                               rotation=NS(x=q[0], y=q[1], z=q[2], w=q[3])))
+
+    tree = StaticTree()
+    assert not tree.add(tf("base_link", "laser", 0.2, (0.0, 0.0, 0.0, 0.0)))
+    assert not tree.add(tf("base_link", "laser", math.nan, (0.0, 0.0, 0.0, 1.0)))
+    assert tree.planar("base_link", "laser") is None
+    assert tree.add(tf("base_link", "laser", 0.2, (0.0, 0.0, math.sin(0.05), math.cos(0.05))))
+    assert tree.planar("base_link", "laser") == pytest.approx((0.2, 0.0, 0.1))

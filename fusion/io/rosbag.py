@@ -128,8 +128,15 @@ class RosbagLog:
             tree = StaticTree()
             # (no connections would mean every message to rosbags)
             for connection, _, raw in reader.messages(static) if static else ():
-                for tf in reader.deserialize(raw, connection.msgtype).transforms:
-                    tree.add(tf)
+                try:
+                    transforms = reader.deserialize(raw, connection.msgtype).transforms
+                except Exception as err:  # a corrupt message: the others may still do
+                    log.warning("%s: a /tf_static message is unreadable (%s)", self.path, err)
+                    continue
+                for tf in transforms:
+                    if not tree.add(tf):
+                        log.warning("%s: /tf_static %s -> %s is no rigid motion: ignored",
+                                    self.path, tf.header.frame_id, tf.child_frame_id)
         if not laser:
             return None
         for frame in ([base] if base else list(BASE_FRAMES)):
@@ -175,12 +182,20 @@ class StaticTree:
     def __init__(self) -> None:
         self._parent: dict[str, tuple[str, NDArray[np.float64]]] = {}
 
-    def add(self, tf: Any) -> None:
+    def add(self, tf: Any) -> bool:
+        """Take one transform; False (and nothing kept) when it is no rigid motion: a
+        non-finite number, or a quaternion of zero length."""
         t, q = tf.transform.translation, tf.transform.rotation
+        quaternion = np.array([q.x, q.y, q.z, q.w], dtype=float)
+        translation = np.array([t.x, t.y, t.z], dtype=float)
+        if not (np.isfinite(quaternion).all() and np.isfinite(translation).all()
+                and np.linalg.norm(quaternion) > 1e-9):
+            return False
         matrix = np.eye(4)
-        matrix[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-        matrix[:3, 3] = (t.x, t.y, t.z)
+        matrix[:3, :3] = Rotation.from_quat(quaternion).as_matrix()
+        matrix[:3, 3] = translation
         self._parent[tf.child_frame_id.lstrip("/")] = (tf.header.frame_id.lstrip("/"), matrix)
+        return True
 
     def _to_root(self, frame: str) -> tuple[str, NDArray[np.float64]]:
         """The frame's root and the frame's pose in it."""

@@ -156,7 +156,9 @@ class LocalizerNode(Node):
 
     def _on_tf_static(self, msg: Any) -> None:
         for tf in msg.transforms:
-            self._static.add(tf)
+            if not self._static.add(tf):
+                self.get_logger().warning(f"/tf_static {tf.header.frame_id} -> "
+                                          f"{tf.child_frame_id} is no rigid motion: ignored")
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
         """Start again from the pose RViz's "2D Pose Estimate" gives, with its covariance."""
@@ -200,13 +202,10 @@ class LocalizerNode(Node):
         is there, the pose given (or global localization), the odometry up to ``t``."""
         config = self.config
         mount = self._static.planar(self.base_frame, self._frame.lstrip("/"))
-        if mount is not None and all(map(math.isfinite, mount)):
+        if mount is not None:
             config = config.with_mount(self.sensor, mount)
             self.get_logger().info("laser mount from /tf_static: x {:.3f} y {:.3f} θ {:.4f}"
                                    .format(*mount))
-        elif mount is not None:
-            self.get_logger().warning("/tf_static gives the laser a non-finite pose: the "
-                                      "config's mount is used")
         if self._start_cov is not None:
             sigma_xy = math.sqrt(max(self._start_cov[0, 0], self._start_cov[1, 1], 1e-8))
             sigma_theta = math.degrees(math.sqrt(max(self._start_cov[2, 2], 1e-10)))
