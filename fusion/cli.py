@@ -275,11 +275,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     from fusion.evaluation import Trajectory
     from fusion.localizer import Localizer
     from fusion.replay import metrics_document, replay, write_metrics
-    from fusion.resources import find_map
     from houghloc import SegmentMap
 
-    config = LocalizerConfig.from_yaml(args.config)
-    segment_map = SegmentMap.from_yaml(find_map(args.map))
+    config = LocalizerConfig.from_yaml(
+        None if args.config is None else _packaged(args.config, "config"))
+    segment_map = SegmentMap.from_yaml(_packaged(args.map, "map"))
     events, read_stats, sim_gt, config = _open_log(args, config)
     initial_pose = _initial_pose(args, config)
     if initial_pose is not None:
@@ -449,7 +449,6 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def cmd_ros2(args: argparse.Namespace) -> int:
     from fusion.config import LocalizerConfig
-    from fusion.resources import find_map
     from houghloc import SegmentMap
 
     try:
@@ -457,8 +456,9 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     except ImportError as exc:
         raise CliError(f"the ROS 2 node needs the ros2 extra: pip install 'houghloc[ros2]' "
                        f"({exc})") from None
-    config = LocalizerConfig.from_yaml(args.config)
-    segment_map = SegmentMap.from_yaml(find_map(args.map))
+    config = LocalizerConfig.from_yaml(
+        None if args.config is None else _packaged(args.config, "config"))
+    segment_map = SegmentMap.from_yaml(_packaged(args.map, "map"))
     initial_pose = _initial_pose(args, config)
     logger: Any = NullLogger()
     if args.rrd is not None or args.serve:
@@ -496,6 +496,19 @@ def cmd_map_build(args: argparse.Namespace) -> int:
 
 
 # -------------------------------------------------------------------------------------- helpers
+def _packaged(path: Path, kind: str) -> Path:
+    """A --map or --config as a file: the path given, or the packaged one of that name; a
+    CliError that lists the packaged ones when neither exists."""
+    from fusion.resources import configs_dir, find, maps_dir, packaged_names
+
+    directory = maps_dir() if kind == "map" else configs_dir()
+    found = find(path, directory)
+    if not found.exists():
+        raise CliError(f"{kind} {path}: file not found (packaged {kind}s: "
+                       f"{', '.join(packaged_names(directory))})")
+    return found
+
+
 def _initial_pose(args: argparse.Namespace, config: Any) -> np.ndarray | None:
     """--initial-pose, else the config's ``initial_pose``, else None (global localization)."""
     pose = args.initial_pose if args.initial_pose is not None else config.initial_pose

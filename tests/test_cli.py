@@ -377,4 +377,8 @@ def test_packaged_configs_and_maps_are_found_by_name(tmp_path: Path,
     assert find_map(tmp_path / "office") == tmp_path / "office"  # a path stays a path
     assert main(["run", "--map", "no-such-map", "--log", str(tmp_path), "--out",
                  str(tmp_path / "o"), "--no-rerun"]) == 2
-    assert "no-such-map" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "map no-such-map: file not found" in err and "robocup" in err  # the packaged ones
+    assert main(["run", "--map", "office", "--config", "no-such-config", "--log",
+                 str(tmp_path), "--out", str(tmp_path / "o"), "--no-rerun"]) == 2
+    assert "office-laser" in capsys.readouterr().err

@@ -106,17 +106,18 @@ class LocalizerNode(Node):
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "houghloc/pose", 10)
         self.state_pub = self.create_publisher(String, "houghloc/state", LATCHED)
         self.tf_pub = None
-        if p["publish_tf"]:
-            if tf2_msgs_available():
-                from tf2_msgs.msg import TFMessage
+        if tf2_msgs_available():
+            from tf2_msgs.msg import TFMessage
 
-                self._tf_message = TFMessage
+            self._tf_message = TFMessage
+            # the mount is read whether or not this node publishes map -> odom
+            self.create_subscription(TFMessage, "/tf_static", self._on_tf_static, LATCHED)
+            if p["publish_tf"]:
                 self.tf_pub = self.create_publisher(TFMessage, "/tf", 100)
-                self.create_subscription(TFMessage, "/tf_static", self._on_tf_static, LATCHED)
-            else:
-                self.get_logger().warning(
-                    "tf2_msgs is not installed: map -> odom is not published on /tf and the "
-                    "laser mount comes from the config (python -m fusion.ros2.tf2_msgs builds it)")
+        else:
+            self.get_logger().warning(
+                "tf2_msgs is not installed: map -> odom is not published on /tf and the laser "
+                "mount comes from the config (python -m fusion.ros2.tf2_msgs builds it)")
         self.create_subscription(LaserScan, p["scan_topic"], self._on_scan,
                                  qos_profile_sensor_data)
         self.create_subscription(OdometryMsg, p["odom_topic"], self._on_odometry, 50)
