@@ -26,15 +26,15 @@ import statistics
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import StrEnum
 
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
 from fusion.hypotheses import BankVerdict, HypothesisBank, HypothesisConfig
+from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
-from fusion.visualize import NullLogger
+from fusion.visualize import Logger
 from houghloc import (
     GlobalMatchConfig,
     GlobalResult,
@@ -53,13 +53,6 @@ from houghloc.matching import gate_threshold
 
 _TRACKED_FITS = 200  # accepted scans whose fits tell what a right pose fits
 _SAME_WALL_GAP = 0.05  # m: parallel references closer than this are pieces of one wall
-
-
-class State(StrEnum):
-    TRACKING = "tracking"
-    COLLECTING = "collecting"
-    RELOCALIZING = "relocalizing"
-    LOST = "lost"
 
 
 class AmbiguityConfig(BaseModel):
@@ -195,6 +188,18 @@ class _View:
     points: NDArray[np.float64]
 
 
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """The manager's word on a tracking fix, before the filter sees it: ``use`` it, or not and
+    why (``status``). ``guess_fit``/``fix_fit``: the fractions of the scan's points on walls at
+    the guess and at the fix (None when no check wanted them)."""
+
+    use: bool
+    status: ScanStatus | None = None
+    guess_fit: float | None = None
+    fix_fit: float | None = None
+
+
 @dataclass
 class Decision:
     """What the localizer must do after a scan: nothing, or re-initialise the filter."""
@@ -227,7 +232,7 @@ class AmbiguityManager:
     _recent_fit: deque = field(init=False)
     _guess_fits: deque = field(init=False)
     _fix_fits: deque = field(init=False)
-    logger: NullLogger | None = None
+    logger: Logger | None = None
     # a filter at a pose with a covariance, for each followed hypothesis (the Localizer's own
     # settings); None: hypotheses are not followed by filters
     make_tracker: Callable[[NDArray, NDArray], PoseTracker] | None = None
@@ -258,7 +263,7 @@ class AmbiguityManager:
             c.hold_fit_ratio is not None or c.local_search_xy is not None or \
             c.hypotheses is not None
 
-    def tracking_step(self, t: float, status: str, cov: NDArray, pose: NDArray | None = None,
+    def tracking_step(self, t: float, status: ScanStatus, cov: NDArray, pose: NDArray | None = None,
                       odom: NDArray | None = None,
                       in_view: tuple[NDArray, NDArray] | None = None,
                       guess_fit: float | None = None) -> None:
@@ -270,11 +275,11 @@ class AmbiguityManager:
             return
         if pose is not None and odom is not None:  # the belief, should tracking be abandoned
             self._prior = (np.array(pose, float), np.array(cov, float), np.array(odom, float))
-            if status == "accepted":
+            if status == ScanStatus.ACCEPTED:
                 self._last_trusted = (np.array(pose, float), np.array(odom, float))
-        if status == "re-searched":
+        if status == ScanStatus.RE_SEARCHED:
             self._without_fix = 0
-        elif status == "accepted":
+        elif status == ScanStatus.ACCEPTED:
             self._without_fix = 0
             if guess_fit is not None:
                 self._guess_fits.append(guess_fit)
@@ -298,6 +303,47 @@ class AmbiguityManager:
         if sigma > fraction * spacing:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds {fraction:g} of the "
                                           f"{spacing:.2f} m between parallel lines in view")
+
+    def judge(self, guess: NDArray, fix: ScanCorrection, points: NDArray,
+              kinds: tuple[str, ...], min_lines: int) -> Verdict:
+        """Should the filter be offered this tracking fix? A fix the matcher vouches for (not
+        ambiguous, of rank > 0, at least ``min_lines`` lines matched) is, unless it puts the
+        scan off the walls (:meth:`fix_fits_map`: the robot is elsewhere, or the lines were
+        matched to the wrong walls, however small the innovation); one it cannot vouch for is
+        when the scan itself does (:meth:`fix_gains_fit`: the odometry slipped in a turn)."""
+        # the fractions of the scan on walls at the guess and at the fix, once (in one pass),
+        # for every check that wants them
+        want_guess = self.judges_by_fit
+        want_fix = fix.rank > 0 and (self.judges_fixes or want_guess)
+        wanted = [pose for pose, want in ((guess, want_guess), (fix.pose, want_fix)) if want]
+        fits = self.fit_fractions(np.array(wanted), points, kinds).tolist() if wanted else []
+        guess_fit = fits.pop(0) if want_guess else None
+        fix_fit = fits.pop(0) if want_fix else None
+        matched = 0 if fix.matches is None else len(fix.matches)
+        vouched = not fix.ambiguous and fix.rank > 0 and matched >= min_lines
+        by_fit = (not vouched and fix.rank > 0
+                  and self.fix_gains_fit(fix.pose, points, kinds, guess_fit, fix_fit))
+        if not (vouched or by_fit):
+            status = ScanStatus.AMBIGUOUS if fix.ambiguous else ScanStatus.NO_FIX
+            return Verdict(False, status, guess_fit, fix_fit)
+        if vouched and not self.fix_fits_map(fix.pose, points, kinds, guess_fit, fix_fit):
+            return Verdict(False, ScanStatus.MISFIT, guess_fit, fix_fit)
+        return Verdict(True, None, guess_fit, fix_fit)
+
+    def re_search(self, t: float, status: ScanStatus, verdict: Verdict, guess: NDArray,
+                  points: NDArray, fix: ScanCorrection, kinds: tuple[str, ...],
+                  hough: HoughConfig, odom: NDArray | None) -> Decision | None:
+        """After a tracking scan's update (``status``): when the scan fits worse than usual (at
+        the guess if no fix was accepted, at the fix if one was), the local search near the
+        guess (:meth:`local_search`); None when none was wanted."""
+        guess_fit = verdict.guess_fit
+        fix_fit = verdict.fix_fit if status == ScanStatus.ACCEPTED else None
+        if guess_fit is None or not self.wants_local_search(guess_fit, fix_fit):
+            return None
+        # tracking failed and the prediction no longer fits: the odometry slipped, or
+        # reported a motion the robot did not make. Look for the pose near it first.
+        return self.local_search(t, guess, points, fix, kinds, max(guess_fit, fix_fit or 0.0),
+                                 hough, odom)
 
     def wants_local_search(self, guess_fit: float | None, fix_fit: float | None = None) -> bool:
         """Is a local re-search on, and does the scan fit worse than usual: at the guess when no

@@ -15,6 +15,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.status import ScanStatus
 from houghloc.geometry import Pose, compose, wrap_angle
 from houghloc.matching import gate_threshold
 
@@ -35,7 +36,7 @@ class UpdateOutcome:
     nis: float
     dof: int
     innovation: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
-    status: str = "accepted"
+    status: ScanStatus = ScanStatus.ACCEPTED
 
 
 def motion_jacobians(
@@ -129,12 +130,12 @@ class PoseEKF(ExtendedKalmanFilter):
             np.linalg.cholesky(self.S)  # S must be positive definite, not merely invertible
         except np.linalg.LinAlgError:
             self.x, self.P = prior_x, prior_p
-            return UpdateOutcome(False, 0.0, 0, status="invalid")
+            return UpdateOutcome(False, 0.0, 0, status=ScanStatus.INVALID)
         nis = float(self.y @ self.SI @ self.y)
         dof = h.shape[0]
         if not nis <= self.gates[dof]:
             self.x, self.P = prior_x, prior_p
-            return UpdateOutcome(False, nis, dof, y, status="rejected")
+            return UpdateOutcome(False, nis, dof, y, status=ScanStatus.REJECTED)
         self.x[2] = wrap_angle(self.x[2])
         self.P = symmetric_pd(self.P)
         return UpdateOutcome(True, nis, dof, y)

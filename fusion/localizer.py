@@ -18,7 +18,7 @@ from time import perf_counter
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.ambiguity import AmbiguityManager, State
+from fusion.ambiguity import AmbiguityManager, Verdict
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.ekf import UpdateOutcome
 from fusion.events import MAX_POSE_COORDINATE
@@ -26,8 +26,9 @@ from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
 from fusion.scan_odometry import ScanOdometry
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
+from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
-from fusion.visualize import NullLogger
+from fusion.visualize import Logger, NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points
 from houghloc.jit import warm_up
@@ -44,8 +45,7 @@ class Estimate:
     t: float
     pose: NDArray[np.float64]
     cov: NDArray[np.float64]
-    # accepted | rejected | ambiguous | no-fix | misfit | re-searched | dropped | invalid
-    status: str
+    status: ScanStatus
     correction: ScanCorrection | None = None
     outcome: UpdateOutcome | None = None
 
@@ -69,37 +69,37 @@ class LocalizerStats:
     def tracked_fraction(self) -> float:
         """The share of scans that ended while tracking (a fix used or not, the pose trusted);
         the rest ended collecting views, relocalizing or lost."""
-        untracked = {s.value for s in State if s is not State.TRACKING} | {"relocalized"}
+        untracked = {s.value for s in State if s is not State.TRACKING} | {ScanStatus.RELOCALIZED}
         total = sum(self.statuses.values())
         lost = sum(v for k, v in self.statuses.items() if k in untracked)
         return 1.0 - lost / total if total else 0.0
 
     @property
     def accepted(self) -> int:
-        return self.statuses.get("accepted", 0)
+        return self.statuses.get(ScanStatus.ACCEPTED, 0)
 
     @property
     def rejected(self) -> int:
-        return self.statuses.get("rejected", 0)
+        return self.statuses.get(ScanStatus.REJECTED, 0)
 
     @property
     def ambiguous(self) -> int:
-        return self.statuses.get("ambiguous", 0)
+        return self.statuses.get(ScanStatus.AMBIGUOUS, 0)
 
     @property
     def no_fix(self) -> int:
-        return self.statuses.get("no-fix", 0)
+        return self.statuses.get(ScanStatus.NO_FIX, 0)
 
     @property
     def dropped(self) -> int:
-        return self.statuses.get("dropped", 0)
+        return self.statuses.get(ScanStatus.DROPPED, 0)
 
 
 class Localizer:
     """Wheel odometry fused with Hough-transform pose fixes in an EKF, one event at a time."""
 
     def __init__(self, map: SegmentMap, config: LocalizerConfig | None = None,
-                 initial_pose: ArrayLike | None = None, logger: NullLogger | None = None) -> None:
+                 initial_pose: ArrayLike | None = None, logger: Logger | None = None) -> None:
         self.map = map
         self.config = config or LocalizerConfig()
         self.logger = logger or NullLogger()
@@ -155,7 +155,7 @@ class Localizer:
     @classmethod
     def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,
                     initial_pose: ArrayLike | None = None,
-                    logger: NullLogger | None = None) -> Localizer:
+                    logger: Logger | None = None) -> Localizer:
         cfg = config if isinstance(config, LocalizerConfig) else LocalizerConfig.from_yaml(config)
         return cls(map, cfg, initial_pose, logger)
 
@@ -253,7 +253,7 @@ class Localizer:
             if self.stats.stray_timestamps <= LOGGED_WARNINGS:
                 log.warning("scan at t = %s is %s s ahead of the odometry: not used", t,
                             t - clock if clock is not None else "inf")
-            return self._finish(t if math.isfinite(t) else (clock or 0.0), "dropped", None,
+            return self._finish(t if math.isfinite(t) else (clock or 0.0), ScanStatus.DROPPED, None,
                                 None, sensor, np.empty((0, 2)))
         # NaN/inf points are no returns; every stage below (scan odometry too) gets finite ones
         points = clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0]
@@ -266,45 +266,32 @@ class Localizer:
             return self._global_step(t, points, sensor)
         prior = self.tracker.pose_at(t)
         if prior is None:
-            return self._finish(t, "dropped", None, None, sensor, points)
+            return self._finish(t, ScanStatus.DROPPED, None, None, sensor, points)
         guess, guess_cov = prior
         t0 = perf_counter()
         fix = localize_scan(points, self.map, guess, cfg.hough, pose_cov=guess_cov)
         t1 = perf_counter()
         self.stats.seconds["hough"] += t1 - t0
         kinds = cfg.hough.reference_kinds
-        # the fractions of the scan on walls at the guess and at the fix, once (in one pass),
-        # for every check that wants them
-        want_guess = self.manager.judges_by_fit
-        want_fix = fix.rank > 0 and (self.manager.judges_fixes or want_guess)
-        wanted = [pose for pose, want in ((guess, want_guess), (fix.pose, want_fix)) if want]
-        fits = (self.manager.fit_fractions(np.array(wanted), points, kinds).tolist() if wanted
-                else [])
-        guess_fit = fits.pop(0) if want_guess else None
-        fix_fit = fits.pop(0) if want_fix else None
-        status, outcome = self._use_fix(t, fix, points, cfg, guess_fit, fix_fit)
-        if status != "accepted":
-            fix_fit = None
-        if guess_fit is not None and self.manager.wants_local_search(guess_fit, fix_fit):
-            # tracking failed and the prediction no longer fits: the odometry slipped, or
-            # reported a motion the robot did not make. Look for the pose near it first.
-            t2 = perf_counter()
-            self.stats.seconds["update"] += t2 - t1
-            decision = self.manager.local_search(t, guess, points, fix, kinds,
-                                                 max(guess_fit, fix_fit or 0.0), cfg.hough,
-                                                 self.tracker.odometry_at(t))
+        verdict = self.manager.judge(guess, fix, points, kinds, cfg.min_fix_lines)
+        status, outcome = self._use_fix(t, fix, verdict)
+        t2 = perf_counter()
+        self.stats.seconds["update"] += t2 - t1
+        decision = self.manager.re_search(t, status, verdict, guess, points, fix, kinds, cfg.hough,
+                                          self.tracker.odometry_at(t))
+        if decision is not None:
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)
             if (decision.reset_pose is not None and decision.reset_cov is not None
                     and self.tracker.reset(decision.reset_pose, decision.reset_cov)):
-                status, outcome = "re-searched", None
-        else:
-            self.stats.seconds["update"] += perf_counter() - t1
+                status, outcome = ScanStatus.RE_SEARCHED, None
         estimate = self._finish(t, status, fix, outcome, sensor, points)
         refs = fix.references
+        # the manager gives tracking up here, when the scans stop giving usable fixes
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
                                    self.tracker.odometry_at(t),
-                                   None if refs is None else (refs.theta, refs.rho), guess_fit)
+                                   None if refs is None else (refs.theta, refs.rho),
+                                   verdict.guess_fit)
         return estimate
 
     def _correct_odometry(self, t: float, points: NDArray) -> None:
@@ -323,31 +310,19 @@ class Localizer:
         self.stats.seconds["scan odometry"] = (self.stats.seconds.get("scan odometry", 0.0)
                                                + perf_counter() - t0)
 
-    def _use_fix(self, t: float, fix: ScanCorrection, points: NDArray, cfg: SensorConfig,
-                 guess_fit: float | None, fix_fit: float | None
-                 ) -> tuple[str, UpdateOutcome | None]:
-        """Update the filter with a tracking fix when it can be trusted; the status and the
-        filter's outcome (None when the fix was not offered to it). ``guess_fit``/``fix_fit``:
-        the fractions of the scan's points on walls at the guess and at the fix."""
-        kinds = cfg.hough.reference_kinds
-        vouched = not fix.ambiguous and fix.rank > 0 and _matched_lines(fix) >= cfg.min_fix_lines
-        # a fix the matcher cannot vouch for is used when the scan itself does: clearly more of
-        # its points on walls than at the guess (the odometry slipped in a turn)
-        by_fit = (not vouched and fix.rank > 0
-                  and self.manager.fix_gains_fit(fix.pose, points, kinds, guess_fit, fix_fit))
-        if not (vouched or by_fit):
-            return ("ambiguous" if fix.ambiguous else "no-fix"), None
-        if vouched and not self.manager.fix_fits_map(fix.pose, points, kinds, guess_fit,
-                                                     fix_fit):
-            # the scan lies off the map's walls at the fix: the robot is elsewhere (a kidnap),
-            # or the lines were matched to the wrong walls, however small the innovation
-            return "misfit", None
+    def _use_fix(self, t: float, fix: ScanCorrection, verdict: Verdict
+                 ) -> tuple[ScanStatus, UpdateOutcome | None]:
+        """Update the filter with a tracking fix when the manager's ``verdict`` says it can be
+        trusted; the status and the filter's outcome (None when the fix was not offered)."""
+        if not verdict.use:
+            assert verdict.status is not None
+            return verdict.status, None
         newest = self.tracker.time
         if newest is not None and t < newest:
             self.stats.late += 1
         outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
         self.stats.partial_rank += fix.rank < 3
-        return outcome.status, outcome
+        return ScanStatus(outcome.status), outcome
 
     def on_landmark(self, t: float, label: str, bearing: float) -> None:
         """A recognised landmark (e.g. a goal by its colour) at a bearing: while the map's
@@ -365,18 +340,20 @@ class Localizer:
         the filter; until then the estimate is odometry only, reported with the state."""
         odom = self.tracker.odometry_at(t)
         if odom is None:  # no odometry yet: views cannot be related, wait for it
-            return self._finish(t, self.manager.state.value, None, None, sensor, points)
+            return self._finish(t, ScanStatus.of_state(self.manager.state), None, None, sensor,
+                                points)
         t0 = perf_counter()
         kinds = self._sensor(sensor).hough.reference_kinds
         decision = self.manager.collecting_step(t, odom, points, kinds, self._sensor(sensor).hough)
         self.stats.seconds["global"] = self.stats.seconds.get("global", 0.0) + perf_counter() - t0
         if decision.reset_pose is not None and decision.reset_cov is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov)
-            return self._finish(t, "relocalized", None, None, sensor, points)
+            return self._finish(t, ScanStatus.RELOCALIZED, None, None, sensor, points)
         leading = self.manager.leading_hypothesis
-        return self._finish(t, self.manager.state.value, None, None, sensor, points, leading)
+        return self._finish(t, ScanStatus.of_state(self.manager.state), None, None, sensor, points,
+                            leading)
 
-    def _finish(self, t: float, status: str, fix: ScanCorrection | None,
+    def _finish(self, t: float, status: ScanStatus, fix: ScanCorrection | None,
                 outcome: UpdateOutcome | None, sensor: str, points: NDArray,
                 leading: tuple[NDArray, NDArray] | None = None) -> Estimate:
         """The estimate at ``t``: the filter's, or while several hypotheses are followed the
@@ -394,10 +371,6 @@ class Localizer:
         except KeyError:
             known = ", ".join(self.config.sensors)
             raise KeyError(f"sensor {name!r} is not configured (configured: {known})") from None
-
-
-def _matched_lines(fix: ScanCorrection) -> int:
-    return 0 if fix.matches is None else len(fix.matches)
 
 
 def _to_base(points: NDArray, cfg: SensorConfig) -> NDArray:

@@ -64,7 +64,7 @@ import time
 import uuid
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import numpy as np
@@ -73,7 +73,12 @@ import rerun as rr
 import rerun.blueprint as rrb
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.status import ScanStatus
 from houghloc.geometry import compose, relative, transform_points, wrap_angle
+
+if TYPE_CHECKING:
+    from fusion.localizer import Estimate
+    from houghloc import ScanCorrection, SegmentMap
 
 _log = logging.getLogger(__name__)
 
@@ -102,12 +107,12 @@ PAINTED = (235, 235, 235, 255)
 OBSERVED_UNMATCHED = (170, 170, 170, 255)
 UNMATCHED = (100, 100, 100, 255)
 STATUS_COLOURS = {
-    "accepted": (60, 200, 90, 255),
-    "rejected": (230, 60, 50, 255),
-    "ambiguous": (250, 160, 30, 255),
-    "no-fix": (150, 150, 150, 255),
-    "dropped": (140, 40, 40, 255),
-    "invalid": (140, 40, 40, 255),
+    ScanStatus.ACCEPTED: (60, 200, 90, 255),
+    ScanStatus.REJECTED: (230, 60, 50, 255),
+    ScanStatus.AMBIGUOUS: (250, 160, 30, 255),
+    ScanStatus.NO_FIX: (150, 150, 150, 255),
+    ScanStatus.DROPPED: (140, 40, 40, 255),
+    ScanStatus.INVALID: (140, 40, 40, 255),
 }
 STATE_LEVELS = {"tracking": "INFO", "collecting": "WARN", "relocalizing": "WARN", "lost": "ERROR"}
 ODOMETRY_COLOUR = (200, 120, 255, 255)
@@ -447,8 +452,8 @@ class RerunLogger:
             self.stream.log(f"metrics/{name}", rr.SeriesLines(names=name.split("/")[-1]),
                             static=True)
 
-    # ---------------------------------------------------------------- NullLogger interface
-    def log_map(self, segment_map: Any) -> None:
+    # ---------------------------------------------------------------- the Logger protocol
+    def log_map(self, segment_map: SegmentMap) -> None:
         """The map, once, as static data; fixes the colour of every map line."""
         line_of = np.asarray(segment_map.line_of_segment)
         is_wall = np.asarray(segment_map.kinds) == "wall"
@@ -467,12 +472,12 @@ class RerunLogger:
                 strips[keep], radii=radius, colors=self._colours.table[line_of[keep]],
                 labels=list(ids[keep]), show_labels=False, draw_order=1.0), static=True)
 
-    def log_odometry(self, t: float, odom_pose: Any) -> None:
+    def log_odometry(self, t: float, odom_pose: ArrayLike) -> None:
         """Remember the latest odometry pose; the odometry path is drawn at each scan."""
         self._odometry = np.asarray(odom_pose, dtype=float).reshape(3)
 
-    def log_scan(self, t: float, index: int, sensor: str, points: Any, correction: Any,
-                 estimate: Any) -> None:
+    def log_scan(self, t: float, index: int, sensor: str, points: NDArray[np.float64],
+                 correction: ScanCorrection | None, estimate: Estimate) -> None:
         """One scan: its points in the world, the robot, the paths, the Hough stage, metrics."""
         t, index = float(t), int(index)
         pose = np.asarray(estimate.pose, dtype=float)
@@ -483,12 +488,12 @@ class RerunLogger:
         self._robot(t, index, pose, cov, estimate.status)
         if primary:
             self._hough(t, index, correction)
-        if estimate.status != "accepted":
+        if estimate.status != ScanStatus.ACCEPTED:
             reason = getattr(correction, "reason", "")
             self._batch("log/scan", rr.TextLog).add(
                 t, index, 1, text=[f"scan {index} ({sensor}): {estimate.status}"
                                    + (f": {reason}" if reason else "")],
-                level=["DEBUG" if estimate.status == "no-fix" else "WARN"])
+                level=["DEBUG" if estimate.status == ScanStatus.NO_FIX else "WARN"])
         self._metrics(t, index, pose, cov, correction, getattr(estimate, "outcome", None))
         self._scans_logged += 1
         self._batched_scans += 1
@@ -496,7 +501,7 @@ class RerunLogger:
                 or time.monotonic() - self._last_send >= self._batch_seconds):
             self._send_batches()
 
-    def log_truth(self, t: float, pose: Any) -> None:
+    def log_truth(self, t: float, pose: ArrayLike) -> None:
         """Ground truth: kept for the error series; drawn (robot and path) at the next scan."""
         x, y, theta = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
         if self._truth_t and t < self._truth_t[-1]:
@@ -511,7 +516,7 @@ class RerunLogger:
         self.stream.log("log/state", rr.TextLog(f"{state}: {reason}" if reason else state,
                                                 level=STATE_LEVELS.get(state, "INFO")))
 
-    def log_hypotheses(self, t: float, poses: Any, scores: Any) -> None:
+    def log_hypotheses(self, t: float, poses: ArrayLike, scores: ArrayLike) -> None:
         """Global localization's candidate poses (N×3) with their scores as labels."""
         self._set_time(t)
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
@@ -627,7 +632,7 @@ class RerunLogger:
         return rows
 
     def _robot(self, t: float, index: int, pose: NDArray[np.float64], cov: NDArray[np.float64],
-               status: str) -> None:
+               status: ScanStatus) -> None:
         colour = np.array([STATUS_COLOURS.get(status, UNMATCHED)], dtype=np.uint8)
         self._batch("world/robot/estimate", rr.Arrows2D).add(
             t, index, 1, origins=pose[None, :2], vectors=_heading(pose), colors=colour,

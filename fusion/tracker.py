@@ -45,6 +45,7 @@ from fusion.motion import (
     increment,
     interpolate,
 )
+from fusion.status import ScanStatus
 from houghloc.geometry import wrap_angle
 
 if TYPE_CHECKING:  # the config module imports the filter's pieces, not the other way round
@@ -313,7 +314,7 @@ class PoseTracker:
         """
         meas = self._checked_measurement(t, z, r, basis)
         if meas is None:
-            return UpdateOutcome(False, 0.0, 0, status="invalid")
+            return UpdateOutcome(False, 0.0, 0, status=ScanStatus.INVALID)
         if not self._nodes:
             self._ekf.x, self._ekf.P = self._x, self._p
             outcome = self._update(meas)
@@ -326,7 +327,7 @@ class PoseTracker:
             return self._apply_now(t, meas)
         if t < self._nodes[self._oldest()].t:
             self.counts.dropped += 1
-            return UpdateOutcome(False, 0.0, 0, status="dropped")
+            return UpdateOutcome(False, 0.0, 0, status=ScanStatus.DROPPED)
         self.counts.delayed += 1
         j = bisect_right(self._nodes, t, key=_node_time) - 1
         node = self._estimate(j)
@@ -408,7 +409,7 @@ class PoseTracker:
     def _attach(self, node: _Node, meas: _Measurement) -> UpdateOutcome:
         """Update the loaded engine at ``node`` with ``meas``, store the result and count it."""
         outcome = self._update(meas)
-        if outcome.status != "invalid":
+        if outcome.status != ScanStatus.INVALID:
             node.measurements.append(meas)
         node.x, node.p = self._ekf.x, self._ekf.P
         return outcome
@@ -417,7 +418,7 @@ class PoseTracker:
         outcome = self._ekf.update_pose(meas.z, meas.r, meas.basis)
         if outcome.accepted:
             self.counts.updates += 1
-        elif outcome.status == "rejected":
+        elif outcome.status == ScanStatus.REJECTED:
             self.counts.rejected += 1
         else:
             self._invalid("singular innovation covariance")

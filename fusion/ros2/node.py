@@ -53,7 +53,7 @@ from fusion.ros2.messages import (
     set_stamp,
 )
 from fusion.ros2.tf2_msgs import available as tf2_msgs_available
-from fusion.visualize import NullLogger
+from fusion.visualize import Logger, NullLogger
 from houghloc import SegmentMap
 from houghloc.geometry import wrap_angle
 
@@ -80,7 +80,7 @@ class LocalizerNode(Node):
 
     def __init__(self, segment_map: SegmentMap, config: LocalizerConfig,
                  initial_pose: NDArray[np.float64] | None = None,
-                 logger: NullLogger | None = None, name: str = "houghloc",
+                 logger: Logger | None = None, name: str = "houghloc",
                  **node_options: Any) -> None:
         super().__init__(name, **node_options)
         self.map, self.config, self.rerun = segment_map, config, logger or NullLogger()
@@ -269,7 +269,7 @@ class LocalizerNode(Node):
 
 
 def run_node(segment_map: SegmentMap, config: LocalizerConfig,
-             initial_pose: NDArray[np.float64] | None, logger: NullLogger,
+             initial_pose: NDArray[np.float64] | None, logger: Logger,
              ros_args: list[str]) -> int:
     """``houghloc ros2``: spin the node until Ctrl-C, SIGTERM (as ``ros2 launch`` and systemd
     stop a node) or a shutdown; 0 when it ends cleanly."""
