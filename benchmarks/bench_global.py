@@ -18,7 +18,8 @@ import numpy as np
 from benchmarks.common import MAPS, ray_scan, tiled_map, time_interleaved
 from houghloc import SegmentMap, observe_lines
 from houghloc.geometry import relative, transform_points, wrap_angle
-from houghloc.global_match import GlobalMatchConfig, angle_index, global_match, wall_distance
+from houghloc.global_match import GlobalMatchConfig, global_match
+from houghloc.map_lookup import angle_index, wall_distance
 
 POSES = [np.array(p) for p in ((21.66, 2.7, -0.58), (9.57, 21.04, -2.77), (29.38, 17.07, 2.71),
                                (2.67, 8.26, -0.44), (37.75, 3.04, 2.29), (14.56, 16.15, 2.01))]

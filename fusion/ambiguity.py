@@ -47,8 +47,9 @@ from houghloc import (
 )
 from houghloc.displacement import UNOBSERVED_VARIANCE
 from houghloc.geometry import compose, relative, transform_points, wrap_angle, wrap_scalar
-from houghloc.global_match import Neighbourhood, wall_distance
+from houghloc.global_match import Neighbourhood
 from houghloc.localize import clean_points
+from houghloc.map_lookup import wall_distance
 from houghloc.matching import gate_threshold
 
 _TRACKED_FITS = 200  # accepted scans whose fits tell what a right pose fits

@@ -1,4 +1,5 @@
-"""Settings of the Hough method, validated with pydantic (units in the names; radians inside)."""
+"""Settings of the Hough method and of global set matching, validated with pydantic (units in the
+names; radians inside)."""
 
 from __future__ import annotations
 
@@ -119,3 +120,102 @@ class HoughConfig(BaseModel):
     @property
     def guess_sigma_theta(self) -> float:
         return math.radians(self.guess_sigma_theta_deg)
+
+
+class GlobalMatchConfig(BaseModel):
+    """Settings of global set matching. Angles in degrees in the names, radians inside."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    # --- hypotheses from pairs
+    min_pair_angle_deg: float = Field(
+        15.0, gt=0.0, lt=90.0, description="two lines closer to parallel do not fix a pose")
+    angle_tol_sigmas: float = Field(3.0, gt=0.0, description="× σ of the observed angle δ")
+    angle_tol_floor_deg: float = Field(1.5, ge=0.0, description="model error of map and lines")
+    angle_tol_max_deg: float = Field(5.0, gt=0.0, le=30.0, description="cap on the δ window")
+    max_observed_lines: int = Field(
+        12, ge=2, description="the strongest lines (most points) form the pairs")
+    max_observed_pairs: int = Field(
+        40, ge=1, description="best-conditioned pairs kept (length product × |sin δ|)")
+    max_pair_hypotheses: int = Field(
+        150_000, ge=1, description="budget of hypotheses; best-conditioned pairs go first")
+    bbox_margin: float = Field(0.0, ge=0.0, description="m; poses beyond the map's box are dropped")
+    # --- pose-space votes and cheap score
+    vote_cell_xy: float = Field(0.25, gt=0.0, description="m; pose-space vote cell in x and y")
+    vote_cell_theta_deg: float = Field(3.0, gt=0.0, description="°; pose-space vote cell in "
+                                       "heading")
+    max_cells_cheap: int = Field(
+        30_000, ge=1, description="best-voted cells given the cheap score")
+    line_samples: int = Field(4, ge=2, description="samples along each line for the cheap score")
+    cheap_lines: int = Field(6, ge=2, description="strongest lines sampled for the cheap score")
+    # --- full score
+    max_hypotheses_scored: int = Field(
+        120, ge=1, description="top-M by the cheap score that get the point-based score")
+    max_score_points: int = Field(1500, ge=10, description="points subsampled for the score")
+    dt_cell: float = Field(0.05, gt=0.0, description="m; cell of the distance-transform grid")
+    inlier_distance: float = Field(0.12, gt=0.0, description="m; a point this close is on a wall")
+    min_line_coverage: float = Field(
+        0.6, gt=0.0, le=1.0, description="fraction of a line's points on walls to explain it")
+    line_weight: float = Field(0.5, ge=0.0, le=1.0, description="w in the score")
+    # Negative evidence, for the refined hypotheses: a point behind a wall that the hypothesis
+    # puts between it and the robot was seen *through* that wall, so it does not count. This is
+    # what separates two rooms alike but for a pillar that one of them would have shown.
+    check_visibility: bool = Field(True, description="points seen through a wall do not count")
+    visibility_margin: float = Field(
+        0.25, ge=0.0, description="m; also absorbs the baseline between accumulated views")
+    # --- only parallel lines in view (a corridor seen along its length): the pose along them
+    # is found by sliding the view along each map line and counting the points on walls (door
+    # gaps and what shows through them), the only part of the view that fixes it
+    slide_along_parallel: bool = Field(True, description="slide a view of parallel lines along "
+                                       "them when no pair of lines fixes the pose")
+    slide_step: float = Field(0.1, gt=0.0, description="m; coarse step of the slide")
+    slide_fine_step: float = Field(0.02, gt=0.0, description="m; step around the best ones")
+    slide_points: int = Field(400, ge=10, description="points subsampled for the slide")
+    slide_candidates: int = Field(40, ge=1, description="coarse maxima searched finely")
+    slide_sigma: float = Field(
+        0.1, gt=0.0, description="m; σ along the lines of a pose found by sliding")
+    slide_check: float = Field(0.3, gt=0.0, description="m; a found pose slid this far ...")
+    slide_min_sharpness: float = Field(
+        0.02, ge=0.0, description="... either way must fit worse by this much (weighted "
+        "fraction of points): otherwise the view does not fix the position along the lines")
+    # --- clusters, refinement, decision
+    cluster_xy: float = Field(0.3, gt=0.0, description="m; closer poses are one hypothesis")
+    cluster_theta_deg: float = Field(5.0, gt=0.0, description="°; closer headings are one "
+                                     "hypothesis")
+    max_refined: int = Field(8, ge=1, description="clusters refined and reported")
+    refine_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior around a hypothesis")
+    refine_sigma_theta_deg: float = Field(3.0, gt=0.0, description="°; prior around a "
+                                          "hypothesis")
+    refine_iterations: int = Field(2, ge=1, description="matching corrections of a hypothesis")
+    min_lines_explained: int = Field(2, ge=2, description="and two of them non-parallel (rank 3)")
+    tie_margin: float = Field(
+        0.02, ge=0.0, description="hypotheses this close to the best score tie with it")
+    # Line extraction for accumulated views (pass it to ``observe_lines``) and the gates and
+    # extent checks of the refinement's matching. A peak needs a fraction of *all* points: with
+    # 360° of accumulated views that fraction is halved (and more peaks kept), or a short wall
+    # seen through a door never becomes a line and the pose stays undetermined.
+    hough: HoughConfig = HoughConfig(peak_fraction=0.02, max_peaks=24)
+
+    @property
+    def min_pair_angle(self) -> float:
+        return math.radians(self.min_pair_angle_deg)
+
+    @property
+    def angle_tol_floor(self) -> float:
+        return math.radians(self.angle_tol_floor_deg)
+
+    @property
+    def angle_tol_max(self) -> float:
+        return math.radians(self.angle_tol_max_deg)
+
+    @property
+    def vote_cell_theta(self) -> float:
+        return math.radians(self.vote_cell_theta_deg)
+
+    @property
+    def cluster_theta(self) -> float:
+        return math.radians(self.cluster_theta_deg)
+
+    @property
+    def refine_sigma_theta(self) -> float:
+        return math.radians(self.refine_sigma_theta_deg)

@@ -66,8 +66,9 @@ def warm_up() -> float:
 
     from houghloc.config import HoughConfig
     from houghloc.geometry import ray_segment_distances
-    from houghloc.global_match import Neighbourhood, global_match, wall_distance
+    from houghloc.global_match import Neighbourhood, global_match
     from houghloc.localize import localize_scan, observe_lines
+    from houghloc.map_lookup import wall_distance
     from houghloc.segment_map import SegmentMap
 
     started = time.perf_counter()

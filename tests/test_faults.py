@@ -332,7 +332,7 @@ def test_ten_thousand_random_segments_are_refused_before_allocating(office, tmp_
 
     loc = Localizer(m, None, (50.0, 50.0, 0.0))  # the parallel spacing: linear memory
     with pytest.raises(MapError, match="oriented pairs"):
-        from houghloc.global_match import angle_index
+        from houghloc.map_lookup import angle_index
 
         angle_index(loc.map, ("wall",), 0.3, 0.1)
 

@@ -8,17 +8,10 @@ from pydantic import ValidationError
 
 from houghloc import SegmentMap, observe_lines
 from houghloc.geometry import relative, transform_points, wrap_angle
-from houghloc.global_match import (
-    GlobalMatchConfig,
-    GlobalResult,
-    Neighbourhood,
-    angle_index,
-    global_match,
-    observed_pairs,
-    pair_hypotheses,
-    seen_directly,
-    wall_distance,
-)
+from houghloc.global_match import GlobalMatchConfig, GlobalResult, Neighbourhood, global_match
+from houghloc.hypothesis_scores import seen_directly
+from houghloc.map_lookup import angle_index, wall_distance
+from houghloc.pose_hypotheses import observed_pairs, pair_hypotheses
 from houghloc.refine import Lines
 from tests.conftest import MAPS
 

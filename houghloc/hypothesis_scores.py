@@ -1,0 +1,219 @@
+"""Steps 3 to 5 of global set matching (:mod:`houghloc.global_match`): a hypothesis scored by
+its lines' samples, then by all its points, on the map's distance transform; near-identical
+poses clustered; the survivors refined on their matched lines.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from houghloc.displacement import Displacement, estimate_displacement
+from houghloc.geometry import wrap_angle
+from houghloc.jit import njit
+from houghloc.map_lookup import WallDistance
+from houghloc.matching import Matches, associate
+from houghloc.pose_hypotheses import row_chunks
+from houghloc.refine import Lines
+from houghloc.segment_map import References, SegmentMap
+
+if TYPE_CHECKING:
+    from houghloc.config import GlobalMatchConfig
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One candidate pose of ``base`` in ``map``.
+
+    ``cov`` is the covariance of the refined pose from its matched lines alone. ``score`` ∈ [0, 1]
+    (see the module docstring); ``n_lines_explained`` counts the observed lines lying on walls;
+    ``inlier_fraction`` is the fraction of points within ``inlier_distance`` of a wall;
+    ``matches`` is an M×2 array of (observed line index, map line index) used by the refinement.
+    """
+
+    pose: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    score: float
+    n_lines_explained: int
+    inlier_fraction: float
+    matches: NDArray[np.intp]
+    slid: bool = False  # found by sliding along parallel lines: its position along them rests
+
+
+def cheap_scores(poses: NDArray, lines: Lines, walls: WallDistance,
+                 config: GlobalMatchConfig) -> NDArray[np.float64]:
+    """Point-count-weighted fraction of the ``cheap_lines`` strongest observed lines whose samples
+    lie on walls (H,).
+
+    Line k is sampled at S evenly spaced points ρ n_k + s t_k, s ∈ [s0, s1]; it counts when
+    ≥ ``min_line_coverage`` of its samples are within ``inlier_distance`` of a wall.
+    """
+    lines = lines.subset(np.argsort(-lines.n, kind="stable")[: config.cheap_lines])
+    u = np.linspace(0.0, 1.0, config.line_samples)
+    s = lines.s0[:, None] + u[None, :] * (lines.s1 - lines.s0)[:, None]  # K×S
+    c, sn = np.cos(lines.theta)[:, None], np.sin(lines.theta)[:, None]
+    px = (lines.rho[:, None] * c - s * sn).astype(np.float32)
+    py = (lines.rho[:, None] * sn + s * c).astype(np.float32)
+    weight = lines.n / lines.n.sum()
+    out = np.empty(len(poses))
+    for sl in row_chunks(len(poses), px.size):
+        on_wall = walls.at(poses[sl], px, py) <= config.inlier_distance  # H×K×S
+        explained = on_wall.mean(axis=2) >= config.min_line_coverage
+        out[sl] = explained @ weight
+    return out
+
+
+@dataclass(frozen=True)
+class PointScores:
+    score: NDArray[np.float64]
+    inlier_fraction: NDArray[np.float64]
+    n_explained: NDArray[np.intp]
+    explained: NDArray[np.bool_]  # H×K
+
+
+def point_scores(poses: NDArray, points: NDArray, members: NDArray[np.bool_],
+                 walls: WallDistance, config: GlobalMatchConfig,
+                 visible: NDArray[np.bool_] | None = None) -> PointScores:
+    """Score every pose with all (subsampled) points, in chunks of hypotheses × points.
+
+    inlier_fraction = mean over points of [d(point) ≤ inlier_distance]; line k is explained when
+    the fraction of its member points on walls reaches ``min_line_coverage``;
+    score = w · Σ_k n_k [explained_k] / Σ_k n_k + (1 − w) · inlier_fraction.
+    ``visible`` (H×N), when given, removes the points seen through a wall from the inliers.
+    """
+    m = members.astype(np.float32)
+    n_k = m.sum(axis=0)
+    weight = n_k / max(float(n_k.sum()), 1.0)
+    inliers = np.empty(len(poses))
+    explained = np.empty((len(poses), members.shape[1]), dtype=bool)
+    for sl in row_chunks(len(poses), len(points)):
+        on_wall = walls.at(poses[sl], points[:, 0], points[:, 1]) <= config.inlier_distance
+        if visible is not None:
+            on_wall &= visible[sl]
+        on_wall = on_wall.astype(np.float32)
+        inliers[sl] = on_wall.mean(axis=1)
+        covered = (on_wall @ m) / np.maximum(n_k, 1.0)
+        explained[sl] = (covered >= config.min_line_coverage) & (n_k > 0)
+    w = config.line_weight
+    # float32 × float32 goes to BLAS; bool × float32 took NumPy's own buffered loop, which
+    # now and then raised a spurious 'invalid value' flag (the products are 0/1 × finite)
+    score = w * (explained.astype(np.float32) @ weight) + (1.0 - w) * inliers
+    return PointScores(score, inliers, explained.sum(axis=1), explained)
+
+
+# ---------------------------------------------------------------------------- 5. clusters
+def cluster(poses: NDArray, scores: NDArray, config: GlobalMatchConfig) -> list[int]:
+    """Greedy non-maximum suppression in pose space: the best pose absorbs every pose within
+    ``cluster_xy`` and ``cluster_theta`` of it. Returns the kept indices, best first (the loop runs
+    once per cluster, not per pose)."""
+    order = np.argsort(-scores, kind="stable")
+    alive = np.ones(len(poses), dtype=bool)
+    kept: list[int] = []
+    for j in order:
+        if not alive[j]:
+            continue
+        kept.append(int(j))
+        near = (np.hypot(*(poses[:, :2] - poses[j, :2]).T) <= config.cluster_xy) & (
+            np.abs(wrap_angle(poses[:, 2] - poses[j, 2])) <= config.cluster_theta)
+        alive &= ~near
+        if not alive.any():
+            break
+    return kept
+
+
+def refine_hypothesis(pose: NDArray, lines: Lines, max_range: float, pts_s: NDArray,
+                      members_s: NDArray, map: SegmentMap, walls: WallDistance,
+                      kinds: tuple[str, ...], config: GlobalMatchConfig) -> Hypothesis | None:
+    """Weighted least squares on the lines matched at a hypothesis (DESIGN §3.5), then rescored.
+
+    The hypothesis is treated as a guess with a tight prior (``refine_sigma_*``): the Hough-domain
+    gates of :func:`associate` then only admit the lines that this pose explains.
+    """
+    pose = np.array([pose[0], pose[1], float(wrap_angle(pose[2]))])
+    # refine_iterations corrections, then one more (cheap) solve at the last linearisation
+    # point, to which the covariance belongs
+    for step in range(config.refine_iterations + 1):
+        found = matched_at(pose, lines, map, kinds, max_range, config)
+        if found is None or found[2].rank < 3:
+            return None
+        refs, matches, disp = found
+        if step < config.refine_iterations:
+            pose = pose + disp.delta
+            pose[2] = float(wrap_angle(pose[2]))
+    return scored_hypothesis(pose, disp.cov, refs, matches, pts_s, members_s, map, walls, kinds,
+                             max_range, config)
+
+
+def matched_at(pose: NDArray, lines: Lines, map: SegmentMap, kinds: tuple[str, ...],
+                max_range: float, config: GlobalMatchConfig
+                ) -> tuple[References, Matches, Displacement] | None:
+    """The lines matched at a hypothesis treated as a guess with the tight prior
+    ``refine_sigma_*``, and the displacement they give; None when none matches."""
+    hc = config.hough
+    prior = np.diag([config.refine_sigma_xy**2] * 2 + [config.refine_sigma_theta**2])
+    refs = map.references(pose, max_range, kinds, hc.visibility_rays)
+    matches = associate(lines, refs, pose, prior, hc)
+    if len(matches) == 0:
+        return None
+    return refs, matches, estimate_displacement(matches, refs.beta[matches.ref],
+                                                hc.max_observable_sigma)
+
+
+def scored_hypothesis(pose: NDArray, cov: NDArray, refs: References, matches: Matches,
+                      pts_s: NDArray, members_s: NDArray, map: SegmentMap, walls: WallDistance,
+                      kinds: tuple[str, ...], max_range: float, config: GlobalMatchConfig,
+                      slid: bool = False) -> Hypothesis:
+    """A refined pose as a hypothesis: its score on the sampled points, and the line pairs."""
+    visible = (seen_directly(pose, pts_s, map, kinds, max_range, config.visibility_margin)[None]
+               if config.check_visibility else None)
+    s = point_scores(pose[None, :], pts_s, members_s, walls, config, visible)
+    pairs = np.column_stack((matches.line, refs.line[matches.ref])).astype(np.intp)
+    return Hypothesis(pose, cov, float(s.score[0]), int(s.n_explained[0]),
+                      float(s.inlier_fraction[0]), pairs, slid=slid)
+
+
+def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[str, ...],
+                  max_range: float, margin: float) -> NDArray[np.bool_]:
+    """Which robot-frame points the map lets the robot see from ``pose`` (N,).
+
+    The ray o + t (q − o), t ∈ (0, 1], from the robot o to the point q in the world crosses wall
+    segment p + u e, u ∈ [0, 1], where (Cramer's rule on o + t d = p + u e, d = q − o)
+        t = (w × e) / (d × e),   u = (w × d) / (d × e),   w = p − o.
+    A crossing more than ``margin`` before the point means the point was seen through that wall.
+    Only walls occlude; painted lines do not.
+    """
+    near = map.segments_near(pose[:2], max_range)
+    near = near[np.isin(map.kinds[near], kinds) & map.is_wall[near]]
+    if len(near) == 0 or len(points) == 0:
+        return np.ones(len(points), dtype=bool)
+    heading = np.array([pose[2]])  # NumPy's cos and sin, as every other placement of points
+    return _unoccluded(float(pose[0]), float(pose[1]), float(np.cos(heading)[0]),
+                       float(np.sin(heading)[0]), np.ascontiguousarray(points, dtype=float),
+                       map.starts[near], map.ends[near], margin)
+
+
+@njit
+def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, starts: NDArray,
+                ends: NDArray, margin: float) -> NDArray[np.bool_]:
+    """:func:`seen_directly` for the robot at (ox, oy) heading (c, s) = (cos θ, sin θ)."""
+    seen = np.ones(len(points), np.bool_)
+    for i in range(len(points)):
+        dx = ox + c * points[i, 0] - s * points[i, 1] - ox  # d = q − o, q in the world
+        dy = oy + s * points[i, 0] + c * points[i, 1] - oy
+        t_max = 1.0 - margin / max(math.hypot(dx, dy), 1e-9)  # in units of the point's range
+        for j in range(len(starts)):
+            wx, wy = starts[j, 0] - ox, starts[j, 1] - oy
+            ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
+            den = dx * ey - dy * ex
+            if abs(den) <= 1e-12:
+                continue
+            t = (wx * ey - wy * ex) / den
+            u = (wx * dy - wy * dx) / den
+            if t > 1e-6 and t < t_max and u >= 0 and u <= 1:
+                seen[i] = False
+                break
+    return seen

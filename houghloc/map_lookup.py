@@ -1,0 +1,208 @@
+"""The map as the global matcher looks it up, built once per map and kept beside it: the angle
+index of map-line pairs (hypothesis generation, :mod:`houghloc.pose_hypotheses`) and the
+distance transform of its walls (every score). Each is cached on the :class:`SegmentMap` by its
+settings and freed with it.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from houghloc.geometry import TWO_PI
+from houghloc.jit import njit
+from houghloc.segment_map import MapError, SegmentMap, check_grid_size
+
+
+@dataclass(frozen=True)
+class AngleIndex:
+    """Ordered pairs (a, b) of oriented map lines, sorted by δ = β_b − β_a ∈ [0, 2π).
+
+    Entries near 0 and 2π are repeated shifted by ∓2π so a window never needs to wrap. For each
+    pair the inverse of N = [[cos β_a, sin β_a], [cos β_b, sin β_b]] is stored: the position of a
+    hypothesis is then one 2×2 product, x = N⁻¹ (r − ρ).
+    """
+
+    delta: NDArray[np.float64]
+    beta_a: NDArray[np.float64]
+    beta_b: NDArray[np.float64]
+    r_a: NDArray[np.float64]
+    r_b: NDArray[np.float64]
+    n_inv: NDArray[np.float64]  # E×2×2
+    line_a: NDArray[np.intp]
+    line_b: NDArray[np.intp]
+
+
+@dataclass(frozen=True)
+class WallDistance:
+    """Distance (m) from each cell centre to the nearest wall; ``origin`` is the lower-left corner
+    of cell (0, 0), rows along y. Points outside the grid are infinitely far from walls."""
+
+    distance: NDArray[np.float32]
+    origin: NDArray[np.float64]
+    cell: float
+
+    def lookup(self, x: NDArray, y: NDArray) -> NDArray[np.float32]:
+        """Distances at world points (any shape), O(1) each: the value of the cell holding the
+        point (the grid's outermost ring holds +inf, so clipping the indices is the only bounds
+        check)."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        return self.at(_IDENTITY, x, y)[0]
+
+    def lookup_smooth(self, x: NDArray, y: NDArray) -> NDArray[np.float32]:
+        """Distances interpolated bilinearly between cell centres: continuous in the position,
+        where :meth:`lookup` jumps by a cell (a point exactly on a wall may read one cell off)."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        return self.at(_IDENTITY, x, y, smooth=True)[0]
+
+    def at(self, poses: NDArray, x: NDArray, y: NDArray, smooth: bool = False
+           ) -> NDArray[np.float32]:
+        """Distances at robot-frame points (``x``, ``y``, any shape S) placed in the world at each
+        of ``poses`` (P×3): P×S, the points' world coordinates never stored.
+
+        World point: (x₀ + x cos θ − y sin θ, y₀ + x sin θ + y cos θ). ``smooth``: the bilinear
+        value of :meth:`lookup_smooth`, else the cell's of :meth:`lookup`.
+        """
+        shape = np.shape(x)
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        out = _distances_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,
+                            poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
+                            _flat(x), _flat(y), smooth)
+        return out.reshape((len(poses),) + shape)
+
+
+_IDENTITY = np.zeros((1, 3))
+
+
+def _flat(values: NDArray) -> NDArray[np.float64]:
+    """One contiguous float64 row (the kernels are compiled for that layout only)."""
+    return np.ascontiguousarray(np.ravel(values), dtype=float)
+
+
+@njit
+def _distances_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: NDArray,
+                  cos_t: NDArray, sin_t: NDArray, x: NDArray, y: NDArray, smooth: bool
+                  ) -> NDArray[np.float32]:
+    h, w = grid.shape
+    out = np.empty((len(poses), len(x)), np.float32)
+    for p in range(len(poses)):
+        c, s, px, py = cos_t[p], sin_t[p], poses[p, 0], poses[p, 1]
+        for k in range(len(x)):
+            fx = (px + c * x[k] - s * y[k] - ox) * inv_cell
+            fy = (py + s * x[k] + c * y[k] - oy) * inv_cell
+            if not smooth:  # truncation is floor inside the grid; outside, the +inf ring
+                ix, iy = min(max(int(fx), 0), w - 1), min(max(int(fy), 0), h - 1)
+                out[p, k] = grid[iy, ix]
+                continue
+            fx, fy = fx - 0.5, fy - 0.5  # from cell centres
+            x0 = min(max(math.floor(fx), 0), w - 2)
+            y0 = min(max(math.floor(fy), 0), h - 2)
+            ax, ay = min(max(fx - x0, 0.0), 1.0), min(max(fy - y0, 0.0), 1.0)
+            top = grid[y0, x0] * (1 - ax) + grid[y0, x0 + 1] * ax
+            bottom = grid[y0 + 1, x0] * (1 - ax) + grid[y0 + 1, x0 + 1] * ax
+            d = top * (1 - ay) + bottom * ay
+            out[p, k] = np.inf if math.isnan(d) else d  # inf · 0 at the rim: far from walls
+    return out
+
+
+def _cached(map: SegmentMap, key: tuple, build):
+    """Per-map memo (dropped with the map): the index and the grid are built once per map."""
+    store = _CACHE.setdefault(map, {})
+    if key not in store:
+        store[key] = build()
+    return store[key]
+
+
+def map_lines_of_kinds(map: SegmentMap, kinds: tuple[str, ...]) -> NDArray[np.intp]:
+    """Canonical lines with at least one segment of the given kinds."""
+    segs = np.isin(map.kinds, kinds)
+    return np.unique(map.line_of_segment[segs])
+
+
+def angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float,
+                pad: float) -> AngleIndex:
+    """The (cached) angle index of a map's oriented line pairs; ``pad`` ≥ the widest window."""
+    return _cached(map, ("angle_index", kinds, min_angle, pad),
+                   lambda: _build_angle_index(map, kinds, min_angle, pad))
+
+
+MAX_INDEX_PAIRS = 10_000_000
+
+
+def _build_angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float,
+                       pad: float) -> AngleIndex:
+    lines = map_lines_of_kinds(map, kinds)
+    if (2 * len(lines)) ** 2 > MAX_INDEX_PAIRS:
+        raise MapError(f"map {map.source}: {len(lines)} distinct lines make "
+                       f"{(2 * len(lines)) ** 2:,} oriented pairs for global matching's angle "
+                       f"index (~{(2 * len(lines)) ** 2 * 100 / 2**30:.1f} GiB), more than the "
+                       f"{MAX_INDEX_PAIRS:,} allowed")
+    beta = np.concatenate((map.line_alpha[lines], map.line_alpha[lines] + np.pi))
+    r = np.concatenate((map.line_r[lines], -map.line_r[lines]))
+    line = np.concatenate((lines, lines))
+    grid_a, grid_b = np.meshgrid(np.arange(len(beta)), np.arange(len(beta)), indexing="ij")
+    a, b = grid_a.ravel(), grid_b.ravel()
+    delta = np.mod(beta[b] - beta[a], TWO_PI)
+    keep = (line[a] != line[b]) & (np.abs(np.sin(delta)) >= math.sin(min_angle))
+    a, b, delta = a[keep], b[keep], delta[keep]
+    # repeat the ends of the circle so that [δ − tol, δ + tol] is one contiguous range
+    low, high = delta < pad, delta > TWO_PI - pad
+    a = np.concatenate((a, a[low], a[high]))
+    b = np.concatenate((b, b[low], b[high]))
+    delta = np.concatenate((delta, delta[low] + TWO_PI, delta[high] - TWO_PI))
+    order = np.argsort(delta, kind="stable")
+    a, b, delta = a[order], b[order], delta[order]
+    ca, sa, cb, sb = np.cos(beta[a]), np.sin(beta[a]), np.cos(beta[b]), np.sin(beta[b])
+    det = ca * sb - sa * cb  # = sin δ, bounded away from 0 by min_angle
+    n_inv = np.stack((np.stack((sb, -sa), -1), np.stack((-cb, ca), -1)), -2) / det[:, None, None]
+    return AngleIndex(delta, beta[a], beta[b], r[a], r[b], n_inv, line[a], line[b])
+
+
+def wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
+                  margin: float = 1.0) -> WallDistance:
+    """The (cached) distance-transform grid of the map's segments of ``kinds``."""
+    return _cached(map, ("wall_distance", kinds, cell, margin),
+                   lambda: _build_wall_distance(map, kinds, cell, margin))
+
+
+def _build_wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
+                         margin: float) -> WallDistance:
+    segs = np.flatnonzero(np.isin(map.kinds, kinds))
+    ends = np.concatenate((map.starts[segs], map.ends[segs]))
+    origin = ends.min(axis=0) - margin
+    w, h = np.ceil((ends.max(axis=0) + margin - origin) / cell).astype(int) + 1
+    check_grid_size((h, w), cell, f"map {map.source}")
+    # walls are drawn as 0 on a 255 background; the transform gives each cell's distance (in
+    # cells, exact Euclidean) to the nearest wall pixel
+    image = np.full((h, w), 255, dtype=np.uint8)
+    shift = 4  # sub-pixel precision of the drawn segments
+    p0 = np.round((map.starts[segs] - origin) / cell * (1 << shift) - 0.5 * (1 << shift))
+    p1 = np.round((map.ends[segs] - origin) / cell * (1 << shift) - 0.5 * (1 << shift))
+    for a, b in zip(p0.astype(int), p1.astype(int), strict=True):  # once per map
+        cv2.line(image, (int(a[0]), int(a[1])), (int(b[0]), int(b[1])), 0, 1, cv2.LINE_8, shift)
+    dist = (cv2.distanceTransform(image, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * cell)
+    dist[[0, -1], :] = dist[:, [0, -1]] = np.inf  # off the grid is far from every wall
+    return WallDistance(dist.astype(np.float32), origin, cell)
+
+
+def inside_map(poses: NDArray, map: SegmentMap, kinds: tuple[str, ...],
+                margin: float) -> NDArray[np.bool_]:
+    """Which poses lie within ``margin`` of the bounding box of the map's segments of ``kinds``."""
+    lo, hi = map_bbox(map, kinds)
+    xy = poses[:, :2]
+    return np.all((xy >= lo - margin) & (xy <= hi + margin), axis=1)
+
+
+def map_bbox(map: SegmentMap, kinds: tuple[str, ...]) -> tuple[NDArray, NDArray]:
+    """The lower and upper corners of the box around the map's segments of ``kinds``."""
+    segs = np.isin(map.kinds, kinds)
+    ends = np.concatenate((map.starts[segs], map.ends[segs]))
+    return ends.min(axis=0), ends.max(axis=0)
+
+
+_CACHE: weakref.WeakKeyDictionary[SegmentMap, dict] = weakref.WeakKeyDictionary()
