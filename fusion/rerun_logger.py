@@ -43,7 +43,7 @@ at once; when not serving, the SDK gathers them into chunks of ``FILE_CHUNK_BYTE
 
 Paths are logged in blocks because the viewer shows the latest value of an entity: a path sent
 whole at every scan grows quadratically with the run. The newest ``PATH_PIECE`` poses are
-re-sent at every scan; older ones sit in blocks merged like a binary counter (:class:`_Path`).
+re-sent at every scan; older ones sit in blocks merged like a binary counter (:class:`PathPieces`).
 The number of entities stays logarithmic in the run: a file sink keeps an index of every chunk
 (with a column per entity and component) until it writes the footer, and an entity per piece
 made that index grow with the run's length times the number of its pieces.
@@ -54,11 +54,8 @@ the world view is the map mirrored top to bottom; hovering shows true map coordi
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import math
-import shutil
-import signal
 import subprocess
 import time
 import uuid
@@ -68,11 +65,25 @@ from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import numpy as np
-import pyarrow as pa
 import rerun as rr
-import rerun.blueprint as rrb
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.rerun_columns import ColumnBatch, PathPieces
+from fusion.rerun_serve import GRPC_PORT, SERVE_HOST, WEB_PORT, die_with_parent, web_viewer_command
+from fusion.rerun_view import (
+    ARROW_LENGTH,
+    PATH_COLOURS,
+    STATE_LEVELS,
+    STATUS_COLOURS,
+    UNMATCHED,
+    LineColours,
+    covariance_ellipse,
+    default_blueprint,
+    entity_styles,
+    heading_vector,
+    hough_pixels,
+    own_row,
+)
 from fusion.status import ScanStatus
 from houghloc.geometry import compose, relative, transform_points, wrap_angle
 
@@ -82,10 +93,6 @@ if TYPE_CHECKING:
 
 _log = logging.getLogger(__name__)
 
-PR_SET_PDEATHSIG = 1  # prctl(2): the signal a child gets when its parent ends
-SERVE_HOST = "127.0.0.1"  # serve to this machine only: a recording can show where a robot is
-GRPC_PORT = 9876
-WEB_PORT = 9090
 # Scans buffered per send_columns call. Each call makes one chunk per entity, and a file sink
 # keeps a few kB of metadata per chunk until its footer is written at the end: fewer, larger
 # chunks keep a long recording's memory flat.
@@ -94,289 +101,12 @@ BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
 IMAGE_BATCH = 100  # Hough images buffered at most (5 MB on a 3° × 10 cm grid)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
-PATH_PIECE = 50  # poses re-sent at every scan; older ones are re-sent ~log2(n / this) times
-CHI2_95_2DOF = 5.991464547107979  # χ²(2) quantile of the 95 % ellipse
-MAX_ELLIPSE_RADIUS = 20.0  # m; an unobserved direction would otherwise zoom the view out to nothing
 UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulation's
 TRUTH_TOLERANCE = 0.5  # s; a truth sample this close stands in for one at the estimate's time
 MAX_PENDING_ERRORS = 10 * BATCH_SCANS  # estimates kept waiting for truth that may never come
 
-ARROW_LENGTH = 0.5  # m
-POINT_RADIUS = 0.03  # m
-PAINTED = (235, 235, 235, 255)
-OBSERVED_UNMATCHED = (170, 170, 170, 255)
-UNMATCHED = (100, 100, 100, 255)
-STATUS_COLOURS = {
-    ScanStatus.ACCEPTED: (60, 200, 90, 255),
-    ScanStatus.REJECTED: (230, 60, 50, 255),
-    ScanStatus.AMBIGUOUS: (250, 160, 30, 255),
-    ScanStatus.NO_FIX: (150, 150, 150, 255),
-    ScanStatus.DROPPED: (140, 40, 40, 255),
-    ScanStatus.INVALID: (140, 40, 40, 255),
-}
-STATE_LEVELS = {"tracking": "INFO", "collecting": "WARN", "relocalizing": "WARN", "lost": "ERROR"}
-ODOMETRY_COLOUR = (200, 120, 255, 255)
-TRUTH_COLOUR = (80, 200, 255, 255)
-ESTIMATE_COLOUR = (60, 200, 90, 255)
-
 METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
            "sigma/theta", "matches", "error/position", "error/heading")
-_UNIT_CIRCLE = np.vstack((np.cos(np.linspace(0.0, 2.0 * np.pi, 37)),
-                          np.sin(np.linspace(0.0, 2.0 * np.pi, 37))))
-
-
-# ------------------------------------------------------------------------------- colours
-def line_palette(n: int) -> NDArray[np.uint8]:
-    """``n`` RGBA colours, one per map line id; line k's colour does not depend on ``n``.
-
-    Hues step by the golden ratio, so neighbouring ids get far-apart hues.
-    """
-    h = (np.arange(n) * 0.6180339887498949) % 1.0
-    s, v = 0.75, 0.95
-    i = np.floor(h * 6.0).astype(int) % 6
-    f = h * 6.0 - np.floor(h * 6.0)
-    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
-    vv = np.full(n, v)
-    pp = np.full(n, p)
-    r = np.choose(i, [vv, q, pp, pp, t, vv])
-    g = np.choose(i, [t, vv, vv, q, pp, pp])
-    b = np.choose(i, [pp, pp, t, vv, vv, q])
-    rgba = np.column_stack((r, g, b, np.ones(n))) * 255.0
-    return np.round(rgba).astype(np.uint8)
-
-
-class _LineColours:
-    """Colour table indexed by map line id; row −1 is 'unmatched', row −2 'on an unmatched line'.
-
-    Built once from the map (painted lines white); grows by the palette for ids it has not seen
-    (a logger used without ``log_map``).
-    """
-
-    def __init__(self) -> None:
-        self.painted = np.zeros(0, dtype=bool)
-        self.names = np.zeros(0, dtype=object)
-        self.table = self._build(0)
-
-    def set_map(self, painted: NDArray[np.bool_], names: list[str]) -> None:
-        self.painted = painted
-        self.names = np.asarray(names, dtype=object)
-        self.table = self._build(len(painted))
-
-    def _build(self, n: int) -> NDArray[np.uint8]:
-        rows = line_palette(n)
-        painted = np.zeros(n, dtype=bool)
-        painted[: len(self.painted)] = self.painted[:n]
-        rows[painted] = PAINTED
-        return np.vstack((rows, [OBSERVED_UNMATCHED, UNMATCHED])).astype(np.uint8)
-
-    @property
-    def n_lines(self) -> int:
-        return len(self.table) - 2
-
-    def ensure(self, ids: NDArray[np.intp]) -> None:
-        if len(ids) and int(ids.max()) >= self.n_lines:
-            self.table = self._build(int(ids.max()) + 1)
-
-    def label(self, ids: NDArray[np.intp]) -> list[str]:
-        known = len(self.names)
-        return [str(self.names[i]) if i < known else f"line {i}" for i in ids.tolist()]
-
-
-# ------------------------------------------------------------------------------- geometry
-def covariance_ellipse(xy: ArrayLike, cov_xy: NDArray[np.float64],
-                       chi2: float = CHI2_95_2DOF) -> NDArray[np.float64]:
-    """Closed polyline (37×2) of the ellipse {p : (p−xy)ᵀ C⁻¹ (p−xy) = χ²}, semi-axes clamped."""
-    w, v = np.linalg.eigh(0.5 * (cov_xy + cov_xy.T))
-    radii = np.minimum(np.sqrt(np.maximum(w, 0.0) * chi2), MAX_ELLIPSE_RADIUS)
-    return ((v * radii) @ _UNIT_CIRCLE).T + np.asarray(xy, dtype=float)[:2]
-
-
-def hough_pixels(grid: Any, theta: ArrayLike, rho: ArrayLike,
-                 wrap: bool = True) -> NDArray[np.float64]:
-    """(θ, ρ) to accumulator pixel coordinates (u: ρ column, v: θ row).
-
-    ``wrap`` puts θ in its own cell's row (θ just below 2π is the top row, cell 0); without it
-    θ is used as given (an end of a segment may then lie just outside the image).
-    """
-    theta = _own_row(grid, theta) if wrap else np.asarray(theta, dtype=float)
-    return np.column_stack(((np.asarray(rho, dtype=float) - grid.rho_min) / grid.rho_step,
-                            theta / grid.theta_step + 0.5))
-
-
-def _own_row(grid: Any, theta: ArrayLike) -> NDArray[np.float64]:
-    """θ in [−δθ/2, 2π − δθ/2): θ cell i is centred on iδθ, so cell 0 straddles θ = 0."""
-    half = 0.5 * grid.theta_step
-    return (np.asarray(theta, dtype=float) + half) % (2.0 * np.pi) - half
-
-
-class _Path:
-    """A growing polyline drawn with a bounded number of entities (see the module doc).
-
-    The newest poses (at most ``PATH_PIECE`` segments) are re-sent at every scan on
-    ``<entity>/recent``. A full piece moves to level 0; a block arriving on an occupied level
-    merges with it (older first) and moves up, as in a binary counter, so level ``j`` holds
-    ``2**j`` pieces or nothing. A run of ``n`` poses uses ``1 + log2(n / PATH_PIECE)`` entities
-    and re-sends each pose about ``log2(n / PATH_PIECE)`` times.
-    """
-
-    def __init__(self, entity: str) -> None:
-        self.entity = entity
-        self.recent = np.empty((PATH_PIECE + 1, 2))
-        self.count = 0
-        self.levels: list[NDArray[np.float64] | None] = []
-
-    def append(self, xy: ArrayLike) -> list[tuple[str, NDArray[np.float64]]]:
-        """Add a pose; return the (entity, polyline) pairs to log, an empty polyline clearing."""
-        updates = []
-        if self.count == len(self.recent):
-            updates = self._carry(self.recent.copy())
-            self.recent[0] = self.recent[-1]  # the new piece starts where the last one ended
-            self.count = 1
-        self.recent[self.count] = np.asarray(xy, dtype=float)[:2]
-        self.count += 1
-        updates.append((f"{self.entity}/recent", self.recent[: self.count].copy()))
-        return updates
-
-    def _carry(self, block: NDArray[np.float64]) -> list[tuple[str, NDArray[np.float64]]]:
-        updates = []
-        level = 0
-        while level < len(self.levels) and (older := self.levels[level]) is not None:
-            block = np.vstack((older, block[1:]))  # the blocks share their joining pose
-            self.levels[level] = None
-            updates.append((f"{self.entity}/{level}", _NO_POINTS))
-            level += 1
-        if level == len(self.levels):
-            self.levels.append(None)
-        self.levels[level] = block
-        updates.append((f"{self.entity}/{level}", block))
-        return updates
-
-
-_NO_POINTS = np.empty((0, 2))
-
-
-# ------------------------------------------------------------------------------- blueprint
-def default_blueprint() -> rrb.Blueprint:
-    """World view (map, scan, robot, paths, hypotheses) beside the Hough view, the time series
-    and the text log."""
-    world = rrb.Spatial2DView(name="World", origin="/", contents=["+ world/**", "+ global/**"])
-    hough = rrb.Spatial2DView(name="Hough (rows θ, columns ρ)", origin="hough")
-    errors = rrb.TimeSeriesView(name="Errors (m, °)", origin="metrics/error")
-    nis = rrb.TimeSeriesView(name="NIS", origin="metrics/nis")
-    sigmas = rrb.TimeSeriesView(name="σ (m, °)", origin="metrics/sigma")
-    innovation = rrb.TimeSeriesView(name="Innovation (m, °)", origin="metrics/innovation")
-    matches = rrb.TimeSeriesView(name="Matches", origin="metrics/matches")
-    text = rrb.TextLogView(name="Log", origin="log")
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(world, text, row_shares=[3, 1]),
-            rrb.Vertical(
-                hough,
-                rrb.Horizontal(errors, nis),
-                rrb.Horizontal(sigmas, rrb.Tabs(innovation, matches)),
-                row_shares=[2, 1, 1],
-            ),
-            column_shares=[3, 2],
-        ),
-        rrb.TimePanel(timeline="time"),
-    )
-
-
-def web_viewer_command(grpc_uri: str, web_port: int, host: str = SERVE_HOST) -> list[str]:
-    """The Rerun CLI serving only the web viewer, on ``host``, pointed at our gRPC server.
-
-    ``rerun.serve_web_viewer`` has no bind address (it listens on 0.0.0.0); the CLI's ``--bind``
-    applies to its web server.
-    """
-    return [_rerun_executable(), "--serve-web", "--bind", host,
-            "--web-viewer-port", str(web_port), grpc_uri]
-
-
-def _rerun_executable() -> str:
-    try:
-        import rerun_cli  # the wheel's own binary, matching the SDK's version
-
-        binary = Path(rerun_cli.__file__).parent / "rerun"
-        if binary.exists():
-            return str(binary)
-    except ImportError:
-        pass
-    return shutil.which("rerun") or "rerun"
-
-
-# ------------------------------------------------------------------------------- batching
-_STRIPS_TYPE = rr.components.LineStrip2DBatch([[[0.0, 0.0], [1.0, 0.0]]]).as_arrow_array().type
-
-
-def strips_array(strips: list[NDArray[np.float64]]) -> pa.Array:
-    """Ragged line strips as one Arrow list array (rerun converts a list of strips one by one)."""
-    lengths = np.fromiter((len(p) for p in strips), dtype=np.int32, count=len(strips))
-    offsets = np.concatenate(([0], np.cumsum(lengths, dtype=np.int32)))
-    flat = (np.concatenate(strips).astype(np.float32).reshape(-1) if len(strips)
-            else np.empty(0, np.float32))
-    points = pa.FixedSizeListArray.from_arrays(pa.array(flat), type=_STRIPS_TYPE.value_type)
-    return pa.ListArray.from_arrays(pa.array(offsets), points, type=_STRIPS_TYPE)
-
-
-class _Batch:
-    """The rows of one entity, sent with one ``send_columns`` call.
-
-    One ``log`` call costs ~100 µs whatever its size; a row in a batch costs a few µs. A row is
-    one time (``t``, ``scan``) with ``length`` instances; every field holds that many instances
-    (``strips``: a list of polylines; other lists: strings; arrays: stacked along axis 0).
-    """
-
-    def __init__(self, entity: str, archetype: Any) -> None:
-        self.entity = entity
-        self.archetype = archetype
-        self.t: list[float] = []
-        self.scan: list[int] = []
-        self.lengths: list[int] = []
-        self.fields: dict[str, list] = {}
-
-    def add(self, t: float, scan: int, length: int, **fields: Any) -> None:
-        self.t.append(t)
-        self.scan.append(scan)
-        self.lengths.append(length)
-        for name, value in fields.items():
-            self.fields.setdefault(name, []).append(value)
-
-    def send(self, stream: rr.RecordingStream, time_column: Any) -> None:
-        if not self.t:
-            return
-        data = {name: _join(name, rows) for name, rows in self.fields.items()}
-        stream.send_columns(
-            self.entity, indexes=[time_column(np.asarray(self.t)),
-                                  rr.TimeColumn("scan", sequence=np.asarray(self.scan))],
-            columns=self.archetype.columns(**data).partition(self.lengths))
-        self.t, self.scan, self.lengths, self.fields = [], [], [], {}
-
-
-def _join(name: str, rows: list) -> Any:
-    if name == "strips":
-        return strips_array([strip for row in rows for strip in row])
-    if isinstance(rows[0], list):
-        return pa.array([item for row in rows for item in row], type=pa.utf8())
-    return np.concatenate(rows)
-
-
-def _styles() -> dict[str, Any]:
-    """What does not change from row to row, logged once per entity as static data."""
-    return {
-        "points": rr.Points2D.from_fields(radii=POINT_RADIUS, draw_order=3.0),
-        "world/robot/estimate": rr.Arrows2D.from_fields(radii=0.04, draw_order=5.0,
-                                                        show_labels=False),
-        "world/robot/covariance": rr.LineStrips2D.from_fields(radii=0.015, draw_order=4.0),
-        "world/robot/truth": rr.Arrows2D.from_fields(radii=0.03, draw_order=4.5,
-                                                     colors=TRUTH_COLOUR),
-        "hough/peaks": rr.Points2D.from_fields(radii=1.2, draw_order=2.0),
-        "hough/references": rr.Points2D.from_fields(radii=0.8, draw_order=3.0,
-                                                    show_labels=False),
-        "hough/matches": rr.LineStrips2D.from_fields(radii=0.3, draw_order=1.0),
-    }
-
-
-_PATH_COLOURS = {"estimate": ESTIMATE_COLOUR, "odometry": ODOMETRY_COLOUR, "truth": TRUTH_COLOUR}
 _DEGREES = np.array([1.0, 1.0, 180.0 / math.pi])
 
 
@@ -429,17 +159,17 @@ class RerunLogger:
             self._start_web_viewer(web_port)
         self._closed = False
         self._time_kind: str | None = None
-        self._styles = _styles()
-        self._batches: dict[str, _Batch] = {}
+        self._styles = entity_styles()
+        self._batches: dict[str, ColumnBatch] = {}
         self._styled: set[str] = set()
         self._batched_scans = 0
         self._accumulator_entities: dict[tuple[int, int], str] = {}
         self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
-        self._colours = _LineColours()
+        self._colours = LineColours()
         self._primary_sensor: str | None = None
-        self._paths = {name: _Path(f"world/path/{name}") for name in _PATH_COLOURS}
+        self._paths = {name: PathPieces(f"world/path/{name}") for name in PATH_COLOURS}
         self._odometry: NDArray[np.float64] | None = None
         self._odometry_anchor: tuple[NDArray, NDArray] | None = None  # (est₀, odom₀)
         self._truth_t: list[float] = []
@@ -578,10 +308,10 @@ class RerunLogger:
     def _time_column(self, t: NDArray[np.float64]) -> rr.TimeColumn:
         return rr.TimeColumn("time", **{self._clock(float(t[0])): t})
 
-    def _batch(self, entity: str, archetype: Any, style: Any = None) -> _Batch:
+    def _batch(self, entity: str, archetype: Any, style: Any = None) -> ColumnBatch:
         batch = self._batches.get(entity)
         if batch is None:
-            batch = self._batches[entity] = _Batch(entity, archetype)
+            batch = self._batches[entity] = ColumnBatch(entity, archetype)
             self._style_once(entity, style if style is not None else self._styles.get(entity))
         return batch
 
@@ -635,7 +365,7 @@ class RerunLogger:
                status: ScanStatus) -> None:
         colour = np.array([STATUS_COLOURS.get(status, UNMATCHED)], dtype=np.uint8)
         self._batch("world/robot/estimate", rr.Arrows2D).add(
-            t, index, 1, origins=pose[None, :2], vectors=_heading(pose), colors=colour,
+            t, index, 1, origins=pose[None, :2], vectors=heading_vector(pose), colors=colour,
             labels=[status])
         self._batch("world/robot/covariance", rr.LineStrips2D).add(
             t, index, 1, strips=[covariance_ellipse(pose, cov[:2, :2])], colors=colour)
@@ -650,7 +380,7 @@ class RerunLogger:
             self._truth_unlogged = False
             truth = np.asarray(self._truth[-1])
             self._batch("world/robot/truth", rr.Arrows2D).add(
-                t, index, 1, origins=truth[None, :2], vectors=_heading(truth))
+                t, index, 1, origins=truth[None, :2], vectors=heading_vector(truth))
             self._extend_path(t, index, "truth", truth)
 
     def _extend_path(self, t: float, index: int, name: str, pose: NDArray[np.float64]) -> None:
@@ -658,7 +388,7 @@ class RerunLogger:
             batch = self._batches.get(entity)
             if batch is None:
                 batch = self._batch(entity, rr.LineStrips2D, rr.LineStrips2D.from_fields(
-                    colors=_PATH_COLOURS[name], radii=0.02, draw_order=2.0))
+                    colors=PATH_COLOURS[name], radii=0.02, draw_order=2.0))
             n = 1 if len(strip) else 0
             batch.add(t, index, n, strips=[strip][:n])
 
@@ -687,7 +417,7 @@ class RerunLogger:
                 and lines is not None and refs is not None):
             peak_rows[matches.line] = ref_ids[matches.ref]
             # the reference's θ taken nearest the peak's, so a pair across θ = 0 ≡ 2π is short
-            theta_line = _own_row(grid, lines.theta[matches.line])
+            theta_line = own_row(grid, lines.theta[matches.line])
             theta_ref = theta_line + wrap_angle(refs.theta[matches.ref] - theta_line)
             ends = np.stack((peaks[matches.line],
                              hough_pixels(grid, theta_ref, refs.rho[matches.ref], wrap=False)),
@@ -792,7 +522,7 @@ class RerunLogger:
             self._web_viewer = subprocess.Popen(web_viewer_command(grpc_url, web_port),
                                                 stdout=subprocess.DEVNULL,
                                                 stderr=subprocess.DEVNULL,
-                                                preexec_fn=_die_with_parent)
+                                                preexec_fn=die_with_parent)
         except OSError as exc:
             _log.warning("cannot start the Rerun web viewer (%s); open %s with `rerun`",
                          exc, grpc_url)
@@ -801,15 +531,3 @@ class RerunLogger:
         _log.info("Rerun web viewer: %s", self.web_url)
 
 
-def _die_with_parent() -> None:
-    """In the web viewer's process, before it starts: Linux ends it with SIGTERM when houghloc
-    ends, however it ends (close() stops it on a normal exit; a SIGKILL or a crash skips that)."""
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):  # not Linux: close() is what stops it
-        pass
-
-
-def _heading(pose: NDArray[np.float64]) -> NDArray[np.float64]:
-    return ARROW_LENGTH * np.array([[math.cos(pose[2]), math.sin(pose[2])]])

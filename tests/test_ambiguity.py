@@ -183,10 +183,10 @@ def test_misfit_is_relative_to_recent_fixes(office):
     wall_points = np.column_stack((np.linspace(-4, 0, 60), np.full(60, 1.0)))  # y = 7 wall
     clutter = np.column_stack((np.linspace(-1, 1, 40), np.full(40, 0.5)))  # off every wall
     scan = np.concatenate((wall_points, clutter))  # 60 % on walls
-    assert manager.fit_fraction(pose, scan) == pytest.approx(0.6)
-    assert all(manager.fix_fits_map(pose, scan) for _ in range(10))
-    assert manager.fix_fits_map(pose + [0.0, 0.3, 0.0], scan) is False  # 0 % on walls
-    assert manager.fix_fits_map(pose + [0.3, 0.0, 0.0], scan)  # along the wall: still 60 %
+    assert manager.fit.fraction(pose, scan) == pytest.approx(0.6)
+    assert all(manager.fit.fix_fits(pose, scan) for _ in range(10))
+    assert manager.fit.fix_fits(pose + [0.0, 0.3, 0.0], scan) is False  # 0 % on walls
+    assert manager.fit.fix_fits(pose + [0.3, 0.0, 0.0], scan)  # along the wall: still 60 %
     assert manager.counts["misfits"] == 1
 
 
@@ -201,14 +201,14 @@ def test_fit_judges_fixes_the_matcher_cannot(office):
     manager = AmbiguityManager(office, config)
     pose = np.array([5.0, 6.0, 0.0])
     scan = np.column_stack((np.linspace(-4, 0, 60), np.full(60, 1.0)))  # the y = 7 wall
-    on_wall = manager.fit_fraction(pose, scan)
+    on_wall = manager.fit.fraction(pose, scan)
     off_wall = pose + [0.0, 0.3, 0.0]
-    assert on_wall == pytest.approx(1.0) and manager.fit_fraction(off_wall, scan) == 0.0
-    assert manager.fix_fits_map(pose, scan, guess_fit=on_wall)
-    assert manager.fix_fits_map(off_wall, scan, guess_fit=on_wall) is False
-    assert manager.fix_fits_map(off_wall, scan, guess_fit=0.0)  # nothing lost: not judged
-    assert manager.fix_gains_fit(pose, scan, ("wall",), guess_fit=0.0)
-    assert not manager.fix_gains_fit(pose, scan, ("wall",), guess_fit=0.98)  # no clear gain
+    assert on_wall == pytest.approx(1.0) and manager.fit.fraction(off_wall, scan) == 0.0
+    assert manager.fit.fix_fits(pose, scan, guess_fit=on_wall)
+    assert manager.fit.fix_fits(off_wall, scan, guess_fit=on_wall) is False
+    assert manager.fit.fix_fits(off_wall, scan, guess_fit=0.0)  # nothing lost: not judged
+    assert manager.fit.fix_gains(pose, scan, ("wall",), guess_fit=0.0)
+    assert not manager.fit.fix_gains(pose, scan, ("wall",), guess_fit=0.98)  # no clear gain
     assert manager.counts["fit_losses"] == 1 and manager.counts["fixes_by_fit"] == 1
 
     cov = np.diag([0.01, 0.01, 0.001])
@@ -300,7 +300,7 @@ def test_local_search_is_wanted_when_the_scan_fits_worse_than_usual(office):
     cov = np.diag([0.01, 0.01, 0.001])
     assert not manager.wants_local_search(0.1)  # no recent fits to compare with yet
     for k in range(5):
-        assert manager.fix_fits_map(pose, scan, guess_fit=0.9)
+        assert manager.fit.fix_fits(pose, scan, guess_fit=0.9)
         manager.tracking_step(float(k), "accepted", cov, guess_fit=0.9)
     assert manager.wants_local_search(0.5) and not manager.wants_local_search(0.85)
     assert manager.wants_local_search(0.95, fix_fit=0.6)
@@ -314,7 +314,7 @@ def test_local_search_candidate_in_a_corridor_keeps_the_guess_along_it(office):
     the heading and the position across it: the candidate takes those and keeps the guess's
     position along the corridor, with a finite uncertainty there, so starts along the corridor
     do not become rivals of each other. An ambiguous or empty fix is no candidate."""
-    from fusion.ambiguity import _polished
+    from fusion.ambiguity.local_search import _polished
     from houghloc import HoughConfig
 
     true = np.array([5.5, 6.2, 0.0])

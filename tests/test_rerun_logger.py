@@ -25,15 +25,10 @@ from rerun.chunk import RrdReader
 
 from fusion.ekf import UpdateOutcome
 from fusion.localizer import Estimate
-from fusion.rerun_logger import (
-    PATH_PIECE,
-    SERVE_HOST,
-    RerunLogger,
-    _Path,
-    covariance_ellipse,
-    line_palette,
-    web_viewer_command,
-)
+from fusion.rerun_columns import PATH_PIECE, PathPieces
+from fusion.rerun_logger import RerunLogger
+from fusion.rerun_serve import SERVE_HOST, web_viewer_command
+from fusion.rerun_view import covariance_ellipse, line_palette
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ray_segment_distances
@@ -331,7 +326,7 @@ def test_a_cli_run_records_every_stage_of_every_scan(tmp_path: Path) -> None:
 def test_a_path_drawn_from_its_entities_latest_values_is_the_whole_path(n: int) -> None:
     """What the viewer shows after pose k (each entity's latest polyline, older levels first)
     is exactly poses 0..k, with at most 2 + log2(k / PATH_PIECE) entities."""
-    path = _Path("p")
+    path = PathPieces("p")
     poses = np.column_stack((np.arange(n, dtype=float), np.arange(n, dtype=float) ** 2))
     latest: dict[str, np.ndarray] = {}
     for k, pose in enumerate(poses):

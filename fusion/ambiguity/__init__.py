@@ -1,0 +1,18 @@
+"""The ambiguity manager: when tracking can't be trusted, global localization, and back.
+
+* :mod:`~fusion.ambiguity.manager` — the state machine (:class:`AmbiguityManager`);
+* :mod:`~fusion.ambiguity.fit` — how well a scan lies on the walls, the measure it judges by;
+* :mod:`~fusion.ambiguity.local_search` — a pose near the guess after a slip;
+* :mod:`~fusion.ambiguity.ties` — the rules-based alternative to followed hypotheses;
+* :mod:`~fusion.ambiguity.spacing` — the line spacing that bounds a trusted covariance;
+* :mod:`~fusion.ambiguity.config` — its settings.
+"""
+
+from fusion.ambiguity.config import AmbiguityConfig
+from fusion.ambiguity.fit import ScanFit
+from fusion.ambiguity.manager import AmbiguityManager, Decision, Transition, Verdict
+from fusion.ambiguity.spacing import visible_parallel_spacing
+from fusion.status import State
+
+__all__ = ["AmbiguityConfig", "AmbiguityManager", "Decision", "ScanFit", "State", "Transition",
+           "Verdict", "visible_parallel_spacing"]

@@ -1,0 +1,165 @@
+"""How well a scan lies on the map's walls at a pose, and what that says of a tracking fix.
+
+The fraction of a scan's points within the global matcher's inlier distance of a wall (looked
+up in the map's distance transform) is the manager's one measure of fit. Judged against the
+recent scans', it tells a fix that moved the scan off the walls (a misfit), a fix the matcher
+could not vouch for but the scan does, and a prediction that still holds without any fix.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.ambiguity.config import AmbiguityConfig
+from houghloc import SegmentMap
+from houghloc.map_lookup import wall_distance
+
+TRACKED_FITS = 200  # accepted scans whose fits tell what a right pose fits
+MIN_HISTORY = 5  # fits needed before a median says what is usual
+
+
+@dataclass
+class ScanFit:
+    """The fit measure and the recent fits it is judged against (``fit_window`` of each)."""
+
+    map: SegmentMap
+    config: AmbiguityConfig
+    counts: Counter = field(default_factory=Counter)
+    # fractions on walls: of the fixes used (misfit_ratio), of the guesses of accepted scans,
+    # of the fixes that passed fix_fits, and of the latest TRACKED_FITS accepted guesses
+    used: deque = field(init=False)
+    guesses: deque = field(init=False)
+    fixes: deque = field(init=False)
+    tracked: deque = field(default_factory=lambda: deque(maxlen=TRACKED_FITS))
+
+    def __post_init__(self) -> None:
+        window = self.config.fit_window
+        self.used, self.guesses, self.fixes = (
+            deque(maxlen=window), deque(maxlen=window), deque(maxlen=window))
+
+    @property
+    def judges_fixes(self) -> bool:
+        """Does :meth:`fix_fits` look at the scan at all?"""
+        return self.config.misfit_ratio > 0.0 or self.judges_by_fit
+
+    @property
+    def judges_by_fit(self) -> bool:
+        """Do the checks need the fraction of each scan's points on walls at the guess?"""
+        c = self.config
+        return c.max_fit_loss is not None or c.min_fit_gain is not None or \
+            c.hold_fit_ratio is not None or c.local_search_xy is not None or \
+            c.hypotheses is not None
+
+    def fractions(self, poses: NDArray, points: NDArray,
+                  kinds: tuple[str, ...] = ("wall",)) -> NDArray[np.float64]:
+        """:meth:`fraction` at each of ``poses`` (P×3) at once."""
+        if len(points) == 0:
+            return np.zeros(len(poses))
+        gm = self.config.global_match
+        walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
+        return (walls.at(poses, points[:, 0], points[:, 1]) <= gm.inlier_distance).mean(axis=1)
+
+    def fraction(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",)
+                 ) -> float:
+        """The fraction of ``points`` (robot frame) on the map's segments of ``kinds`` at
+        ``pose``."""
+        if len(points) == 0:
+            return 0.0
+        return float(self.fractions(np.asarray(pose, float).reshape(1, 3), points, kinds)[0])
+
+    def accepted(self, guess_fit: float) -> None:
+        """A scan's fix was accepted: its guess's fit is what tracking fits here."""
+        self.guesses.append(guess_fit)
+        self.tracked.append(guess_fit)
+
+    def guess_holds(self, guess_fit: float | None) -> bool:
+        """Does the guess keep the scan on the walls (``hold_fit_ratio`` of the recent accepted
+        guesses' median)? Then a scan without a fix is no sign of being lost."""
+        ratio = self.config.hold_fit_ratio
+        if ratio is None or guess_fit is None or len(self.guesses) < MIN_HISTORY:
+            return False
+        return guess_fit >= ratio * statistics.median(self.guesses)
+
+    def worse_than_usual(self, guess_fit: float, fix_fit: float | None) -> bool:
+        """Does the scan fit worse than usual: at the guess when no fix was used, at the fix
+        (``fix_fit``) when one was (two lines matched to the wrong walls after a slip can pass
+        the gates and still leave the scan off the walls)?"""
+        if len(self.guesses) < MIN_HISTORY:
+            return False
+        if fix_fit is None:
+            return not self.guess_holds(guess_fit)
+        if not self.fixes:  # no fix used yet: nothing says how well one usually fits
+            return False
+        ratio = self.config.hold_fit_ratio or 1.0
+        return fix_fit < ratio * statistics.median(self.fixes)
+
+    def fix_gains(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...],
+                  guess_fit: float | None, fraction: float | None = None) -> bool:
+        """Does a fix that the matcher could not vouch for (one line, or lines that disagree) put
+        ``min_fit_gain`` more of the scan's points on walls than the guess (``guess_fit``)?
+        ``fraction``: the fix's own fraction on walls, if the caller has it."""
+        gain = self.config.min_fit_gain
+        if gain is None or guess_fit is None or len(points) == 0:
+            return False
+        if fraction is None:
+            fraction = self.fraction(pose, points, kinds)
+        if fraction < guess_fit + gain:
+            return False
+        self.counts["fixes_by_fit"] += 1
+        return True
+
+    def fix_fits(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",),
+                 guess_fit: float | None = None, fraction: float | None = None) -> bool:
+        """Does a tracking fix put the scan on the map's walls about as well as recent fixes did,
+        and about as well as the guess it corrects (``guess_fit``, its fraction on walls)?
+
+        The fraction of ``points`` (robot frame) within the global matcher's inlier distance of
+        a wall at ``pose`` is compared with the median of the last ``fit_window`` fixes that
+        passed: below ``misfit_ratio`` times that the fix is a misfit (the robot is not where the
+        filter thinks, e.g. kidnapped). Relative, so that clutter and unmapped furniture, which
+        lower every fix's fraction alike, do not make good fixes misfits. With ``max_fit_loss``
+        set, a fix whose fraction is below ``guess_fit`` by more than that is a misfit too: it
+        moved the scan off walls that the guess had it on (a wrong correspondence).
+        ``fraction``: the fix's own fraction on walls, if the caller has it."""
+        loss = self.config.max_fit_loss if guess_fit is not None else None
+        if not self.judges_fixes or len(points) == 0:
+            return True
+        if fraction is None:
+            fraction = self.fraction(pose, points, kinds)
+        if loss is not None and guess_fit is not None and fraction < guess_fit - loss:
+            self.counts["fit_losses"] += 1
+            return False
+        self.fixes.append(fraction)
+        if self.config.misfit_ratio <= 0.0:
+            return True
+        used = self.used
+        if (len(used) >= MIN_HISTORY
+                and fraction < self.config.misfit_ratio * statistics.median(used)):
+            self.counts["misfits"] += 1
+            return False
+        used.append(fraction)
+        return True
+
+    def typical_fix(self) -> float | None:
+        """The median fit of the recent fixes that passed (None before the first)."""
+        return statistics.median(self.fixes) if self.fixes else None
+
+    def least_right(self, quantile: float) -> float | None:
+        """The fit that all but ``quantile`` of the accepted scans reached (None before 20 of
+        them): a pose taken must fit at least as well as tracking usually did."""
+        if len(self.tracked) < 20:
+            return None
+        return float(np.quantile(np.fromiter(self.tracked, float), quantile))
+
+    def like_tracking(self, mean_fit: float) -> bool:
+        """Does a followed pose fit the scans nearly as well as tracking did before it was
+        abandoned (``tie_min_fit`` of the recent fixes' median; of 1 without any)? A small
+        steady lead only ranks the tied poses; when the right pose is not among them, the best
+        of the wrong ones leads too, but fits visibly worse than tracking did."""
+        typical = float(np.median(self.used)) if self.used else 1.0
+        return mean_fit >= self.config.tie_min_fit * typical

@@ -1,0 +1,150 @@
+"""The local re-search: when tracking fails and the prediction no longer fits the scan, the
+scan's own lines are matched to the map within a neighbourhood of the dead-reckoned pose before
+tracking is given up (a wheel slip, a motion the odometry did not report).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.ambiguity.config import AmbiguityConfig
+from fusion.ambiguity.fit import ScanFit
+from houghloc import (
+    GlobalResult,
+    HoughConfig,
+    ScanCorrection,
+    SegmentMap,
+    global_match,
+    localize_scan,
+)
+from houghloc.displacement import UNOBSERVED_VARIANCE
+from houghloc.geometry import wrap_angle, wrap_scalar
+from houghloc.global_match import Neighbourhood
+
+
+@dataclass(frozen=True, slots=True)
+class Found:
+    """A pose the local re-search found (with its covariance and fit), or only the match."""
+
+    result: GlobalResult | None = None
+    pose: NDArray[np.float64] | None = None
+    cov: NDArray[np.float64] | None = None
+    fit: float = 0.0
+
+
+@dataclass
+class LocalSearch:
+    """Matches one scan's lines to the map near the guess (``local_search_xy``,
+    ``local_search_theta_deg``) and judges the pose found by the scan's fit (:class:`ScanFit`)."""
+
+    map: SegmentMap
+    config: AmbiguityConfig
+    fit: ScanFit
+    counts: Counter
+
+    def find(self, guess: NDArray, points: NDArray, fix: ScanCorrection,
+             kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig,
+             moved_since_fix: float | None) -> Found:
+        """Match the lines of the tracking ``fix`` (from the same ``points``) to the map near
+        ``guess``. The pose found is returned when it clearly fits the scan better than the
+        guess and about as well as tracking did, no other pose in the neighbourhood scores as
+        well (a corridor leaves the position along it open), and it is within reach of the
+        odometry's motion since the last accepted fix (``moved_since_fix``, m; None: no bound)
+        (``local_reach_per_metre``)."""
+        lines, radius = fix.lines, self.config.local_search_xy
+        if (lines is None or len(lines) < 2 or lines.members.shape[0] != len(points)
+                or fix.grid is None or fix.accumulator is None or radius is None):
+            return Found()
+        near = Neighbourhood(np.asarray(guess, float), radius,
+                             math.radians(self.config.local_search_theta_deg))
+        # only the best three are polished below: refining more would be wasted
+        local = self.config.global_match.model_copy(update={"max_refined": 3})
+        result = global_match(lines, points, self.map, local, kinds, near)
+        self.counts["local_searches"] += 1
+        typical = self.fit.typical_fix()
+        if typical is None:
+            return Found(result)
+        # Candidates: the matcher's poses (clustered by 5°, so each is polished by tracking from
+        # it) and the guess turned and moved along its heading step by step (a slip in a turn,
+        # an unreported reversal), each corrected by tracking from there.
+        sweep = _sweep(np.asarray(guess, float), radius,
+                       math.radians(self.config.local_search_theta_deg))
+        raw = self.fit.fractions(sweep, points, kinds)  # polish the promising ones only
+        starts = [np.asarray(h.pose, float) for h in result.hypotheses[:3]]
+        starts += list(sweep[np.argsort(-raw, kind="stable")[:6]])
+        prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+        observed = (fix.grid, fix.accumulator, lines)  # one scan, matched from every start
+        found = []
+        for start in starts:
+            polished = _polished(localize_scan(points, self.map, start, hough, pose_cov=prior,
+                                               observed=observed), np.asarray(guess, float))
+            if polished is not None:
+                found.append((self.fit.fraction(polished[0], points, kinds), *polished))
+        if not found:
+            return Found(result)
+        found.sort(key=lambda f: -f[0])
+        fit, pose, cov = found[0]
+        rivals = [f for f in found[1:] if f[0] > fit - self.config.local_rival_margin
+                  and not _same_pose(f[1], pose)]
+        if (fit < guess_fit + self.config.local_fit_gain
+                or fit < self.config.local_min_fit * typical or rivals
+                or not self._within_reach(pose, guess, moved_since_fix)):
+            return Found(result)
+        self.counts["local_fixes"] += 1
+        return Found(result, np.asarray(pose, float), np.array(cov, dtype=float), fit)
+
+    def _within_reach(self, pose: NDArray, guess: NDArray, moved: float | None) -> bool:
+        """Is ``pose`` within ``local_reach_base`` + ``local_reach_per_metre`` × ``moved`` (the
+        odometry's displacement since the last accepted fix) of the ``guess``? Without it
+        (None) there is no motion to bound it by."""
+        per_metre = self.config.local_reach_per_metre
+        if per_metre is None or moved is None:
+            return True
+        shift = math.hypot(*(np.asarray(pose, float)[:2] - np.asarray(guess, float)[:2]))
+        if shift <= self.config.local_reach_base + per_metre * moved:
+            return True
+        self.counts["local_out_of_reach"] += 1
+        return False
+
+
+def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = 0.3
+              ) -> tuple[NDArray, NDArray] | None:
+    """A local re-search candidate from a fix tracked from it: a full fix as it is; one that
+    observes the heading and the position across the walls in view only (a corridor, or one
+    wall of a cluttered room) keeps the guess's position along them, ``sigma_along`` uncertain
+    (the fix cannot say where along the corridor the start was, so every start along it gives
+    the same candidate and none of them is a rival). None when ambiguous or without heading."""
+    if fix.ambiguous or fix.rank < 2:
+        return None
+    if fix.rank == 3:
+        return fix.pose, fix.cov
+    v = fix.unobservable  # 3×1, in x, y
+    along = v @ v.T
+    pose = fix.pose - along @ (fix.pose - guess)
+    return pose, fix.cov + (sigma_along**2 - UNOBSERVED_VARIANCE) * along
+
+
+def _sweep(guess: NDArray, radius_xy: float, radius_theta: float,
+           step_xy: float = 0.25, step_theta: float = math.radians(2.0)) -> NDArray[np.float64]:
+    """The guess turned by every ``step_theta`` within ``radius_theta``, and moved along its
+    heading by every ``step_xy`` within ``radius_xy`` (forwards and backwards)."""
+    turns = np.arange(step_theta, radius_theta + 1e-9, step_theta)
+    turns = np.concatenate(([0.0], turns, -turns))
+    moves = np.arange(step_xy, radius_xy + 1e-9, step_xy)
+    moves = np.concatenate((moves, -moves))
+    turned = np.tile(guess, (len(turns), 1))
+    turned[:, 2] = wrap_angle(turned[:, 2] + turns)
+    moved = np.tile(guess, (len(moves), 1))
+    moved[:, :2] += moves[:, None] * np.array([math.cos(guess[2]), math.sin(guess[2])])
+    return np.concatenate((turned, moved))
+
+
+def _same_pose(a: NDArray, b: NDArray, xy: float = 0.3,
+               theta: float = math.radians(5.0)) -> bool:
+    return bool(math.hypot(a[0] - b[0], a[1] - b[1]) <= xy
+                and abs(wrap_scalar(a[2] - b[2])) <= theta)

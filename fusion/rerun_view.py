@@ -1,0 +1,170 @@
+"""How the recording looks: the colours (one per map line, a neutral one for the walls), the
+styles logged once per entity, the geometry drawn (covariance ellipses, accumulator pixels) and
+the default blueprint that lays the views out (readable on a 1600 × 1000 screen).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+from numpy.typing import ArrayLike, NDArray
+
+from fusion.status import ScanStatus
+
+MAX_ELLIPSE_RADIUS = 20.0  # m; an unobserved direction would otherwise zoom the view out to nothing
+ARROW_LENGTH = 0.5  # m
+CHI2_95_2DOF = 5.991464547107979  # χ²(2) quantile of the 95 % ellipse
+POINT_RADIUS = 0.03  # m
+PAINTED = (235, 235, 235, 255)
+OBSERVED_UNMATCHED = (170, 170, 170, 255)
+UNMATCHED = (100, 100, 100, 255)
+STATUS_COLOURS = {
+    ScanStatus.ACCEPTED: (60, 200, 90, 255),
+    ScanStatus.REJECTED: (230, 60, 50, 255),
+    ScanStatus.AMBIGUOUS: (250, 160, 30, 255),
+    ScanStatus.NO_FIX: (150, 150, 150, 255),
+    ScanStatus.DROPPED: (140, 40, 40, 255),
+    ScanStatus.INVALID: (140, 40, 40, 255),
+}
+STATE_LEVELS = {"tracking": "INFO", "collecting": "WARN", "relocalizing": "WARN", "lost": "ERROR"}
+ODOMETRY_COLOUR = (200, 120, 255, 255)
+TRUTH_COLOUR = (80, 200, 255, 255)
+ESTIMATE_COLOUR = (60, 200, 90, 255)
+_UNIT_CIRCLE = np.vstack((np.cos(np.linspace(0.0, 2.0 * np.pi, 37)),
+                          np.sin(np.linspace(0.0, 2.0 * np.pi, 37))))
+
+
+# ------------------------------------------------------------------------------- colours
+def line_palette(n: int) -> NDArray[np.uint8]:
+    """``n`` RGBA colours, one per map line id; line k's colour does not depend on ``n``.
+
+    Hues step by the golden ratio, so neighbouring ids get far-apart hues.
+    """
+    h = (np.arange(n) * 0.6180339887498949) % 1.0
+    s, v = 0.75, 0.95
+    i = np.floor(h * 6.0).astype(int) % 6
+    f = h * 6.0 - np.floor(h * 6.0)
+    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
+    vv = np.full(n, v)
+    pp = np.full(n, p)
+    r = np.choose(i, [vv, q, pp, pp, t, vv])
+    g = np.choose(i, [t, vv, vv, q, pp, pp])
+    b = np.choose(i, [pp, pp, t, vv, vv, q])
+    rgba = np.column_stack((r, g, b, np.ones(n))) * 255.0
+    return np.round(rgba).astype(np.uint8)
+
+
+class LineColours:
+    """Colour table indexed by map line id; row −1 is 'unmatched', row −2 'on an unmatched line'.
+
+    Built once from the map (painted lines white); grows by the palette for ids it has not seen
+    (a logger used without ``log_map``).
+    """
+
+    def __init__(self) -> None:
+        self.painted = np.zeros(0, dtype=bool)
+        self.names = np.zeros(0, dtype=object)
+        self.table = self._build(0)
+
+    def set_map(self, painted: NDArray[np.bool_], names: list[str]) -> None:
+        self.painted = painted
+        self.names = np.asarray(names, dtype=object)
+        self.table = self._build(len(painted))
+
+    def _build(self, n: int) -> NDArray[np.uint8]:
+        rows = line_palette(n)
+        painted = np.zeros(n, dtype=bool)
+        painted[: len(self.painted)] = self.painted[:n]
+        rows[painted] = PAINTED
+        return np.vstack((rows, [OBSERVED_UNMATCHED, UNMATCHED])).astype(np.uint8)
+
+    @property
+    def n_lines(self) -> int:
+        return len(self.table) - 2
+
+    def ensure(self, ids: NDArray[np.intp]) -> None:
+        if len(ids) and int(ids.max()) >= self.n_lines:
+            self.table = self._build(int(ids.max()) + 1)
+
+    def label(self, ids: NDArray[np.intp]) -> list[str]:
+        known = len(self.names)
+        return [str(self.names[i]) if i < known else f"line {i}" for i in ids.tolist()]
+
+
+# ------------------------------------------------------------------------------- geometry
+def covariance_ellipse(xy: ArrayLike, cov_xy: NDArray[np.float64],
+                       chi2: float = CHI2_95_2DOF) -> NDArray[np.float64]:
+    """Closed polyline (37×2) of the ellipse {p : (p−xy)ᵀ C⁻¹ (p−xy) = χ²}, semi-axes clamped."""
+    w, v = np.linalg.eigh(0.5 * (cov_xy + cov_xy.T))
+    radii = np.minimum(np.sqrt(np.maximum(w, 0.0) * chi2), MAX_ELLIPSE_RADIUS)
+    return ((v * radii) @ _UNIT_CIRCLE).T + np.asarray(xy, dtype=float)[:2]
+
+
+def hough_pixels(grid: Any, theta: ArrayLike, rho: ArrayLike,
+                 wrap: bool = True) -> NDArray[np.float64]:
+    """(θ, ρ) to accumulator pixel coordinates (u: ρ column, v: θ row).
+
+    ``wrap`` puts θ in its own cell's row (θ just below 2π is the top row, cell 0); without it
+    θ is used as given (an end of a segment may then lie just outside the image).
+    """
+    theta = own_row(grid, theta) if wrap else np.asarray(theta, dtype=float)
+    return np.column_stack(((np.asarray(rho, dtype=float) - grid.rho_min) / grid.rho_step,
+                            theta / grid.theta_step + 0.5))
+
+
+def own_row(grid: Any, theta: ArrayLike) -> NDArray[np.float64]:
+    """θ in [−δθ/2, 2π − δθ/2): θ cell i is centred on iδθ, so cell 0 straddles θ = 0."""
+    half = 0.5 * grid.theta_step
+    return (np.asarray(theta, dtype=float) + half) % (2.0 * np.pi) - half
+
+
+# ------------------------------------------------------------------------------- blueprint
+def default_blueprint() -> rrb.Blueprint:
+    """World view (map, scan, robot, paths, hypotheses) beside the Hough view, the time series
+    and the text log."""
+    world = rrb.Spatial2DView(name="World", origin="/", contents=["+ world/**", "+ global/**"])
+    hough = rrb.Spatial2DView(name="Hough (rows θ, columns ρ)", origin="hough")
+    errors = rrb.TimeSeriesView(name="Errors (m, °)", origin="metrics/error")
+    nis = rrb.TimeSeriesView(name="NIS", origin="metrics/nis")
+    sigmas = rrb.TimeSeriesView(name="σ (m, °)", origin="metrics/sigma")
+    innovation = rrb.TimeSeriesView(name="Innovation (m, °)", origin="metrics/innovation")
+    matches = rrb.TimeSeriesView(name="Matches", origin="metrics/matches")
+    text = rrb.TextLogView(name="Log", origin="log")
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(world, text, row_shares=[3, 1]),
+            rrb.Vertical(
+                hough,
+                rrb.Horizontal(errors, nis),
+                rrb.Horizontal(sigmas, rrb.Tabs(innovation, matches)),
+                row_shares=[2, 1, 1],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="time"),
+    )
+
+
+def entity_styles() -> dict[str, Any]:
+    """What does not change from row to row, logged once per entity as static data."""
+    return {
+        "points": rr.Points2D.from_fields(radii=POINT_RADIUS, draw_order=3.0),
+        "world/robot/estimate": rr.Arrows2D.from_fields(radii=0.04, draw_order=5.0,
+                                                        show_labels=False),
+        "world/robot/covariance": rr.LineStrips2D.from_fields(radii=0.015, draw_order=4.0),
+        "world/robot/truth": rr.Arrows2D.from_fields(radii=0.03, draw_order=4.5,
+                                                     colors=TRUTH_COLOUR),
+        "hough/peaks": rr.Points2D.from_fields(radii=1.2, draw_order=2.0),
+        "hough/references": rr.Points2D.from_fields(radii=0.8, draw_order=3.0,
+                                                    show_labels=False),
+        "hough/matches": rr.LineStrips2D.from_fields(radii=0.3, draw_order=1.0),
+    }
+PATH_COLOURS = {"estimate": ESTIMATE_COLOUR, "odometry": ODOMETRY_COLOUR, "truth": TRUTH_COLOUR}
+
+
+def heading_vector(pose: NDArray[np.float64]) -> NDArray[np.float64]:
+    return ARROW_LENGTH * np.array([[math.cos(pose[2]), math.sin(pose[2])]])
