@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup ros2 demo test test-all bench bench-real lint clean
+.PHONY: setup ros2 browser demo test test-all bench bench-real lint docs clean
 
 setup: $(STAMP)
 
@@ -25,11 +25,17 @@ $(ROS2_STAMP): $(STAMP)
 	$(BIN)/python -m fusion.ros2.tf2_msgs
 	touch $@
 
+# Debian's Chromium for the web viewer's test (software WebGL); it skips, saying so, without it
+browser:
+	@command -v chromium >/dev/null || (apt-get update -qq && apt-get install -y -qq chromium) \
+	    >/dev/null 2>&1 || echo "chromium not installed: the web viewer's test will skip"
+
 demo: setup
 	$(BIN)/houghloc demo
 
 test: setup
 	-@$(MAKE) --no-print-directory ros2 || echo "make ros2 failed: the ROS 2 tests will skip"
+	-@$(MAKE) --no-print-directory browser
 	$(BIN)/python -m pytest -q -m "not slow"
 
 test-all: setup
@@ -46,9 +52,21 @@ bench-real: setup
 	    mrpt-apps) >/dev/null 2>&1 || echo "mrpt-apps not installed: the mrpt rows will say so"
 	$(BIN)/houghloc sweep --spec benchmarks/real.yaml --out runs/bench-real
 
+# the site in site/: the docs, the API from the docstrings, the notebooks executed with their
+# plots; --strict makes every warning (a broken link, a missing page) an error
+DOCS_STAMP := $(VENV)/.docs-installed
+$(DOCS_STAMP): $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[dev,peers,docs]'
+	touch $@
+
+docs: $(DOCS_STAMP)
+	rm -rf docs/notebooks && mkdir -p docs/notebooks
+	cp notebooks/*.ipynb notebooks/notebook_support.py docs/notebooks/
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 lint: setup
 	$(BIN)/ruff check houghloc fusion tests benchmarks notebooks
 	$(BIN)/mypy
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache
+	rm -rf $(VENV) runs .pytest_cache site docs/notebooks

@@ -1,4 +1,4 @@
-"""Speed of global set matching (DESIGN §3.6) on office-large, and its growth with the map.
+"""Speed of global set matching (docs/method.md §6) on office-large, and its growth with the map.
 
 Prints (1) one `global_match` on the packaged map `office-large` from 360° of accumulated views
 (median over poses; target ≤ 0.2 s), its success and the one-off cost of the per-map caches,

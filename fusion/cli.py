@@ -273,45 +273,29 @@ def _recording_options(p: argparse.ArgumentParser) -> None:
 def cmd_run(args: argparse.Namespace) -> int:
     from fusion.config import LocalizerConfig
     from fusion.evaluation import Trajectory
-    from fusion.localizer import Localizer
-    from fusion.replay import metrics_document, replay, write_metrics
+    from fusion.run_log import open_source, run_log
     from houghloc import SegmentMap
 
     config = LocalizerConfig.from_yaml(
         None if args.config is None else _packaged(args.config, "config"))
     segment_map = SegmentMap.from_yaml(_packaged(args.map, "map"))
-    events, read_stats, sim_gt, config = _open_log(args, config)
-    initial_pose = _initial_pose(args, config)
-    if initial_pose is not None:
-        from fusion.io import from_first_scan
-
-        events = from_first_scan(events)
-    gt_path = args.gt or sim_gt
-    reference = Trajectory.from_tum(gt_path) if gt_path else None
-    args.out.mkdir(parents=True, exist_ok=True)
+    source = open_source(args.log, config, args.scan_topic, args.odom_topic)
+    if source.origin is not None:
+        print(source.origin)
+    gt_path = args.gt or source.ground_truth
     logger = _make_logger(args, args.out / "run.rrd")
-    if reference is not None and not isinstance(logger, NullLogger):
-        # the recording shows the ground truth beside the estimate, in time (without a
-        # recording the reference is only scored, and is not carried through the replay)
-        from fusion.events import Truth
-        from fusion.io import merge_by_time
-
-        truth = (Truth(float(t), *map(float, pose))
-                 for t, pose in zip(reference.t, reference.poses, strict=True))
-        events = merge_by_time([events, truth])
-    loc = Localizer(segment_map, config, initial_pose, logger)
-    result = replay(events, loc, trajectory_path=args.out / "trajectory.tum",
-                    progress=False if args.no_progress else None, description=args.log.name,
-                    keep=reference is not None)
-    doc = metrics_document(result, loc, read_stats, reference,
-                           {"map": str(args.map), "log_path": str(args.log),
-                            "ground_truth": str(gt_path) if gt_path else None})
-    write_metrics(args.out / "metrics.json", doc)
+    run = run_log(source, segment_map, initial_pose=_initial_pose(args, source.config),
+                  reference=Trajectory.from_tum(gt_path) if gt_path else None, out=args.out,
+                  logger=logger, progress=False if args.no_progress else None,
+                  description=args.log.name,
+                  metrics_extra={"map": str(args.map), "log_path": str(args.log),
+                                 "ground_truth": str(gt_path) if gt_path else None})
+    result, loc, doc = run.result, run.localizer, run.metrics
     summary, warned = run_summary(result, loc)
     print(summary)
     for text in warned:
         print(f"houghloc: warning: {text}", file=sys.stderr)
-    for kind, info in (read_stats.by_kind().items() if read_stats is not None else ()):
+    for kind, info in (run.read_stats.by_kind().items() if run.read_stats is not None else ()):
         print(f"houghloc: warning: {args.log}: {info['count']} × {kind} (first: "
               f"{info['first']})", file=sys.stderr)
     if "ate" in doc:
@@ -330,26 +314,26 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from fusion.config import LocalizerConfig
     from fusion.evaluation import Trajectory
-    from fusion.localizer import Localizer
-    from fusion.replay import accuracy, metrics_document, replay, write_metrics
+    from fusion.replay import accuracy, write_metrics
     from fusion.resources import find_config
+    from fusion.run_log import run_log
     from fusion.sim import scenario_preset, simulate, write_run
 
     print(f"Simulating the RoboCup field: {args.duration:.0f} s, a laser robot among three "
           f"moving robots (seed {args.seed}) ...")
-    run = simulate(scenario_preset("robocup-laser", seed=args.seed, duration=args.duration))
+    sim = simulate(scenario_preset("robocup-laser", seed=args.seed, duration=args.duration))
     args.out.mkdir(parents=True, exist_ok=True)
-    write_run(run, args.out / "sim")
-    truth = Trajectory(run.truth_t, run.truth)
+    write_run(sim, args.out / "sim")
+    truth = Trajectory(sim.truth_t, sim.truth)
     logger = _make_logger(args, args.out / "run.rrd")
-    loc = Localizer.from_config(find_config("robocup-laser"), run.map, run.odom_truth[0],
-                                logger)  # the kick-off pose is known
-    result = replay(run.events(), loc, trajectory_path=args.out / "trajectory.tum",
-                    description="localizing")
-    odometry_only = Trajectory(run.odom_t, run.odom_in_map())
-    fused = metrics_document(result, loc, None, truth, {"scenario": "robocup-laser",
-                                                        "seed": args.seed})
+    config = LocalizerConfig.from_yaml(find_config("robocup-laser"))
+    run = run_log(sim.events(), sim.map, config, initial_pose=sim.odom_truth[0],  # kick-off
+                  reference=truth, out=args.out, logger=logger,
+                  metrics_extra={"scenario": "robocup-laser", "seed": args.seed})
+    result, fused = run.result, run.metrics
+    odometry_only = Trajectory(sim.odom_t, sim.odom_in_map())
     dead_reckoning = accuracy(_resampled(odometry_only, result.t), truth)
     write_metrics(args.out / "metrics.json", {**fused, "odometry_only": dead_reckoning})
     print()
@@ -517,34 +501,6 @@ def _initial_pose(args: argparse.Namespace, config: Any) -> np.ndarray | None:
     if not all(math.isfinite(v) for v in pose):
         raise CliError("--initial-pose must be three finite numbers")
     return np.asarray(pose, dtype=float)
-
-
-def _open_log(args: argparse.Namespace, config: Any) -> tuple[Any, Any, Path | None, Any]:
-    """Events, read statistics, the ground truth a simulator directory carries, and the
-    configuration with what the log says of the sensor (a ROS bag's ``/tf_static`` mount)."""
-    from fusion.io import is_rosbag, open_log, read_rosbag
-
-    path = args.log
-    if not is_rosbag(path):
-        if args.scan_topic or args.odom_topic:
-            raise CliError(f"--scan-topic and --odom-topic are for ROS bags; {path} is not one")
-        sim_gt = path / "gt.tum" if path.is_dir() and (path / "gt.tum").exists() else None
-        events, stats = open_log(path)
-        return events, stats, sim_gt, config
-    if config.laser is None:
-        raise CliError("a ROS bag's LaserScan needs a laser sensor in the config")
-    bag = read_rosbag(path, scan_topic=args.scan_topic, odometry_topic=args.odom_topic,
-                      sensor=config.laser)
-    scan_topic, odometry_topic = bag.topics()
-    mount = bag.sensor_mount()
-    print(f"{path}: scans from {scan_topic}, odometry from {odometry_topic or 'nowhere'}; "
-          + ("laser mount from /tf_static: x {:.3f} m, y {:.3f} m, θ {:.4f} rad".format(*mount)
-             if mount is not None else "no /tf_static mount: the config's"))
-    if mount is not None:
-        config = config.with_mount(config.laser, mount)
-    events, stats = open_log(path, scan_topic=args.scan_topic, odometry_topic=args.odom_topic,
-                             sensor=config.laser)
-    return events, stats, None, config
 
 
 def _make_logger(args: argparse.Namespace, path: Path):

@@ -62,7 +62,7 @@ class SensorConfig(_Strict):
 
 
 class FilterConfig(_Strict):
-    """The EKF and its history of delayed measurements (DESIGN §4)."""
+    """The EKF and its history of delayed measurements (docs/method.md §7)."""
 
     motion: OdometryMotionConfig = OdometryMotionConfig()
     initial_sigma_xy: float = Field(0.05, gt=0.0,

@@ -1,4 +1,4 @@
-"""The streaming localizer: odometry predicts, Hough fixes correct (DESIGN §2, §4).
+"""The streaming localizer: odometry predicts, Hough fixes correct (docs/architecture.md).
 
     on_odometry ─▶ tracker.predict                    (EKF, history for late data)
     on_scan ─▶ points ─▶ guess at the scan's time ─▶ localize_scan ─▶ tracker.apply ─▶ estimate

@@ -1,12 +1,14 @@
-"""Every stage of the pipeline recorded to Rerun (DESIGN §5): the logger the pipeline is given
+"""Every stage of the pipeline recorded to Rerun: the logger the pipeline is given
 when somebody wants to look. Its public methods are exactly those of
-:class:`fusion.visualize.NullLogger`.
+:class:`fusion.visualize.Logger`. How it looks: :mod:`fusion.rerun_view`; how the rows are
+batched: :mod:`fusion.rerun_columns`; the served web viewer: :mod:`fusion.rerun_serve`.
 
 Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D transform)::
 
-    world/map/walls, world/map/lines          LineStrips2D, static. A wall takes the colour of its
-                                              map line (the colour of the points that match it);
-                                              painted lines are white and thinner
+    world/map/walls, world/map/lines          LineStrips2D, static: walls grey, painted lines
+                                              white and thinner
+    world/map/matched                         the walls of the map lines the scan matched, each in
+                                              its line's colour (that of the points on it)
     world/scan/points                         the scan at the estimated pose, each point in the
                                               colour of the map line its observed line matched;
                                               on an unmatched observed line light grey, else grey
@@ -15,7 +17,8 @@ Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D trans
     world/robot/covariance                    95 % ellipse of the x-y covariance (LineStrips2D)
     world/robot/truth                         Arrows2D, when ground truth is logged
     world/path/{estimate,odometry,truth}/<k>  the paths, in pieces (see below); odometry is
-                                              est₀ ⊕ (odom₀⁻¹ ⊕ odomₖ), anchored at the first scan
+                                              est₀ ⊕ (odom₀⁻¹ ⊕ odomₖ), anchored at the first scan;
+                                              the newest piece labelled with the path's name
     hough/accumulator                         DepthImage of the votes, viridis colour map
     hough/peaks, hough/references             Points2D in accumulator pixels (references labelled
                                               with their segment ids)
@@ -72,10 +75,15 @@ from fusion.rerun_columns import ColumnBatch, PathPieces
 from fusion.rerun_serve import GRPC_PORT, SERVE_HOST, WEB_PORT, die_with_parent, web_viewer_command
 from fusion.rerun_view import (
     ARROW_LENGTH,
+    PAINTED,
     PATH_COLOURS,
+    SERIES_COLOUR,
+    SERIES_COLOURS,
+    SERIES_NAMES,
     STATE_LEVELS,
     STATUS_COLOURS,
     UNMATCHED,
+    WALL_COLOUR,
     LineColours,
     covariance_ellipse,
     default_blueprint,
@@ -168,6 +176,8 @@ class RerunLogger:
         self._last_send = time.monotonic()
         self._scans_logged = 0
         self._colours = LineColours()
+        self._walls: tuple[NDArray[np.float64], NDArray[np.intp]] = (
+            np.empty((0, 2, 2)), np.empty(0, np.intp))
         self._primary_sensor: str | None = None
         self._paths = {name: PathPieces(f"world/path/{name}") for name in PATH_COLOURS}
         self._odometry: NDArray[np.float64] | None = None
@@ -179,8 +189,9 @@ class RerunLogger:
         self._pending: deque[tuple[float, int, float, float, float]] = deque(
             maxlen=MAX_PENDING_ERRORS)
         for name in METRICS:
-            self.stream.log(f"metrics/{name}", rr.SeriesLines(names=name.split("/")[-1]),
-                            static=True)
+            self.stream.log(f"metrics/{name}", rr.SeriesLines(
+                names=SERIES_NAMES.get(name, name.split("/")[-1]),
+                colors=SERIES_COLOURS.get(name.split("/")[-1], SERIES_COLOUR)), static=True)
 
     # ---------------------------------------------------------------- the Logger protocol
     def log_map(self, segment_map: SegmentMap) -> None:
@@ -196,11 +207,13 @@ class RerunLogger:
         self._colours.set_map(painted, ["+".join(n) for n in names])
         strips = np.stack((segment_map.starts, segment_map.ends), axis=1)
         ids = np.asarray(segment_map.ids, dtype=object)
-        for entity, keep, radius in (("world/map/walls", is_wall, 0.04),
-                                     ("world/map/lines", ~is_wall, 0.02)):
+        # the walls in one colour; each scan highlights those it matched (world/map/matched)
+        self._walls = (strips[is_wall], line_of[is_wall])
+        for entity, keep, radius, colour in (("world/map/walls", is_wall, 0.03, WALL_COLOUR),
+                                             ("world/map/lines", ~is_wall, 0.02, PAINTED)):
             self.stream.log(entity, rr.LineStrips2D(
-                strips[keep], radii=radius, colors=self._colours.table[line_of[keep]],
-                labels=list(ids[keep]), show_labels=False, draw_order=1.0), static=True)
+                strips[keep], radii=radius, colors=colour, labels=list(ids[keep]),
+                show_labels=False, draw_order=1.0), static=True)
 
     def log_odometry(self, t: float, odom_pose: ArrayLike) -> None:
         """Remember the latest odometry pose; the odometry path is drawn at each scan."""
@@ -217,6 +230,7 @@ class RerunLogger:
                           else f"world/scan/{sensor}/points", points, correction, pose)
         self._robot(t, index, pose, cov, estimate.status)
         if primary:
+            self._matched_walls(t, index, correction)
             self._hough(t, index, correction)
         if estimate.status != ScanStatus.ACCEPTED:
             reason = getattr(correction, "reason", "")
@@ -361,6 +375,21 @@ class RerunLogger:
         rows[owned] = map_lines[mine.argmax(axis=1)[owned]]
         return rows
 
+    def _matched_walls(self, t: float, index: int, correction: ScanCorrection | None) -> None:
+        """The walls of the map lines this scan's lines matched, each in its line's colour (the
+        colour of the points that lie on it)."""
+        strips, line_of = self._walls
+        matched = getattr(correction, "matched_map_lines", None)
+        if matched is None or len(matched) == 0 or len(line_of) == 0:
+            self._batch("world/map/matched", rr.LineStrips2D).add(
+                t, index, 0, strips=[], colors=np.empty((0, 4), np.uint8))
+            return
+        keep = np.isin(line_of, np.asarray(matched, dtype=np.intp))
+        self._colours.ensure(line_of[keep])
+        self._batch("world/map/matched", rr.LineStrips2D).add(
+            t, index, int(keep.sum()), strips=list(strips[keep]),
+            colors=self._colours.table[line_of[keep]])
+
     def _robot(self, t: float, index: int, pose: NDArray[np.float64], cov: NDArray[np.float64],
                status: ScanStatus) -> None:
         colour = np.array([STATUS_COLOURS.get(status, UNMATCHED)], dtype=np.uint8)
@@ -387,8 +416,11 @@ class RerunLogger:
         for entity, strip in self._paths[name].append(pose):
             batch = self._batches.get(entity)
             if batch is None:
+                # the newest piece, near the robot, carries the path's name: the legend
+                recent = entity.endswith("/recent")
                 batch = self._batch(entity, rr.LineStrips2D, rr.LineStrips2D.from_fields(
-                    colors=PATH_COLOURS[name], radii=0.02, draw_order=2.0))
+                    colors=PATH_COLOURS[name], radii=0.02, draw_order=2.0,
+                    labels=name if recent else None, show_labels=recent))
             n = 1 if len(strip) else 0
             batch.add(t, index, n, strips=[strip][:n])
 

@@ -32,11 +32,11 @@ def web_viewer_command(grpc_uri: str, web_port: int, host: str = SERVE_HOST) -> 
     ``rerun.serve_web_viewer`` has no bind address (it listens on 0.0.0.0); the CLI's ``--bind``
     applies to its web server.
     """
-    return [_rerun_executable(), "--serve-web", "--bind", host,
+    return [rerun_executable(), "--serve-web", "--bind", host,
             "--web-viewer-port", str(web_port), grpc_uri]
 
 
-def _rerun_executable() -> str:
+def rerun_executable() -> str:
     try:
         import rerun_cli  # the wheel's own binary, matching the SDK's version
 

@@ -22,6 +22,15 @@ POINT_RADIUS = 0.03  # m
 PAINTED = (235, 235, 235, 255)
 OBSERVED_UNMATCHED = (170, 170, 170, 255)
 UNMATCHED = (100, 100, 100, 255)
+WALL_COLOUR = (120, 130, 150, 255)  # every wall; the matched ones are drawn over in their colour
+# the time series: x, y, θ in the usual red, green, blue; one-line series in a neutral colour
+SERIES_COLOURS = {"x": (230, 80, 70, 255), "y": (90, 190, 90, 255), "theta": (80, 140, 240, 255),
+                  "position": (230, 80, 70, 255), "heading": (80, 140, 240, 255)}
+SERIES_COLOUR = (220, 220, 220, 255)
+SERIES_NAMES = {"error/position": "position (m)", "error/heading": "heading (°)",
+                "sigma/x": "σx (m)", "sigma/y": "σy (m)", "sigma/theta": "σθ (°)",
+                "innovation/x": "x (m)", "innovation/y": "y (m)", "innovation/theta": "θ (°)",
+                "nis": "NIS", "matches": "lines matched"}
 STATUS_COLOURS = {
     ScanStatus.ACCEPTED: (60, 200, 90, 255),
     ScanStatus.REJECTED: (230, 60, 50, 255),
@@ -124,28 +133,36 @@ def own_row(grid: Any, theta: ArrayLike) -> NDArray[np.float64]:
 
 # ------------------------------------------------------------------------------- blueprint
 def default_blueprint() -> rrb.Blueprint:
-    """World view (map, scan, robot, paths, hypotheses) beside the Hough view, the time series
-    and the text log."""
-    world = rrb.Spatial2DView(name="World", origin="/", contents=["+ world/**", "+ global/**"])
-    hough = rrb.Spatial2DView(name="Hough (rows θ, columns ρ)", origin="hough")
-    errors = rrb.TimeSeriesView(name="Errors (m, °)", origin="metrics/error")
-    nis = rrb.TimeSeriesView(name="NIS", origin="metrics/nis")
-    sigmas = rrb.TimeSeriesView(name="σ (m, °)", origin="metrics/sigma")
-    innovation = rrb.TimeSeriesView(name="Innovation (m, °)", origin="metrics/innovation")
-    matches = rrb.TimeSeriesView(name="Matches", origin="metrics/matches")
-    text = rrb.TextLogView(name="Log", origin="log")
+    """The world (map, scan, robot, paths, hypotheses) over the manager's log, beside the Hough
+    accumulator, the errors and, in tabs, σ, the innovation, the NIS and the matches: each plot
+    a full column wide, readable at 1600 × 1000 with the side panels collapsed."""
+    world = rrb.Spatial2DView(name="World: walls grey, matched walls in their points' colour",
+                              origin="/", contents=["+ world/**", "+ global/**"])
+    hough = rrb.Spatial2DView(name="Hough accumulator (rows θ, columns ρ)", origin="hough")
+    legend = rrb.PlotLegend(corner=rrb.components.Corner2D.LeftTop, visible=True)
+    alone = rrb.PlotLegend(visible=False)  # one series: the title says what it is
+
+    def series(name: str, origin: str, plot_legend: rrb.PlotLegend) -> rrb.TimeSeriesView:
+        return rrb.TimeSeriesView(name=name, origin=origin, plot_legend=plot_legend)
+
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(world, text, row_shares=[3, 1]),
+            rrb.Vertical(world, rrb.TextLogView(name="Manager and scans", origin="log"),
+                         row_shares=[4, 1]),
             rrb.Vertical(
                 hough,
-                rrb.Horizontal(errors, nis),
-                rrb.Horizontal(sigmas, rrb.Tabs(innovation, matches)),
+                series("Error against the reference", "metrics/error", legend),
+                rrb.Tabs(series("σ of the estimate", "metrics/sigma", legend),
+                         series("Innovation", "metrics/innovation", legend),
+                         series("NIS (normalised innovation squared)", "metrics/nis", alone),
+                         series("Lines matched", "metrics/matches", alone)),
                 row_shares=[2, 1, 1],
             ),
-            column_shares=[3, 2],
+            column_shares=[11, 9],
         ),
-        rrb.TimePanel(timeline="time"),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(timeline="time", state="collapsed"),
     )
 
 

@@ -14,12 +14,12 @@ MAX_ACCUMULATOR_CELLS = 10_000_000
 class HoughConfig(BaseModel):
     """Grid, peaks, refinement and matching settings. Defaults: the paper's 3° × 10 cm grid.
 
-    The grid only needs to separate lines (DESIGN §3.2); precision comes from the refinement.
+    The grid only needs to separate lines (docs/method.md §2); precision comes from the refinement.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    # --- grid and voting (§3.2)
+    # --- grid and voting (docs/method.md §2)
     theta_step_deg: float = Field(3.0, gt=0.0, le=45.0, description="° between the grid's θ "
                                   "cells (the paper's 3°: the grid only separates lines)")
     rho_step: float = Field(0.10, gt=0.0, description="m between the grid's ρ cells")
@@ -37,7 +37,7 @@ class HoughConfig(BaseModel):
     nms_rho_cells: int = Field(2, ge=1, description="half-width in ρ cells of the suppression "
                                "window")
     max_peaks: int = Field(16, ge=1, description="lines kept per scan, the best supported first")
-    # --- refinement (§3.3)
+    # --- refinement (docs/method.md §3)
     refine: bool = Field(True, description="refine peaks to lines by total least squares "
                          "(false: the grid cell's centre, the paper's precision)")
     refine_iterations: int = Field(2, ge=1, description="total-least-squares refits, each on the "
@@ -64,13 +64,13 @@ class HoughConfig(BaseModel):
         0.5, ge=0.0, description="σ of a line's θ that no fit removes: the map's model error")
     line_rho_floor: float = Field(
         0.02, ge=0.0, description="m; σ of a line's ρ that no fit removes: the map's model error")
-    # --- map references (§3.4)
+    # --- map references (docs/method.md §4)
     max_range: float | None = Field(None, gt=0.0, description="m; None: from the points")
     reference_kinds: tuple[str, ...] = Field(
         ("wall",), description="map segment kinds this sensor sees (a camera also sees lines)")
     visibility_rays: int = Field(180, ge=8, description="rays cast around the guess to find the "
                                  "map lines in view (once per map cell, memoised)")
-    # --- correspondence and displacement (§3.5)
+    # --- correspondence and displacement (docs/method.md §5)
     guess_sigma_xy: float = Field(0.15, gt=0.0, description="m; prior when no covariance given")
     guess_sigma_theta_deg: float = Field(5.0, gt=0.0, description="°; prior when no covariance "
                                          "given")

@@ -1,4 +1,4 @@
-"""Pose correction from matched lines (DESIGN §3.5).
+"""Pose correction from matched lines (docs/method.md §5).
 
 Every match i relates an observed line zᵢ = (θ, ρ) to its reference hᵢ(x̂) seen from the guess.
 Both are linear in the pose, so with Δ = (Δx, Δy, Δθ) the correction in the map frame,

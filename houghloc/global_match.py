@@ -1,4 +1,4 @@
-"""Global set matching, the paper's strategy (ii) (DESIGN §3.6).
+"""Global set matching, the paper's strategy (ii) (docs/method.md §6).
 
 When tracking cannot be trusted, the points of several views are accumulated into one robot-centred
 frame, their lines are extracted, and the **set** of observed lines is matched against the **set**

@@ -128,7 +128,8 @@ def cluster(poses: NDArray, scores: NDArray, config: GlobalMatchConfig) -> list[
 def refine_hypothesis(pose: NDArray, lines: Lines, max_range: float, pts_s: NDArray,
                       members_s: NDArray, map: SegmentMap, walls: WallDistance,
                       kinds: tuple[str, ...], config: GlobalMatchConfig) -> Hypothesis | None:
-    """Weighted least squares on the lines matched at a hypothesis (DESIGN §3.5), then rescored.
+    """Weighted least squares on the lines matched at a hypothesis (docs/method.md §5), then
+    rescored.
 
     The hypothesis is treated as a guess with a tight prior (``refine_sigma_*``): the Hough-domain
     gates of :func:`associate` then only admit the lines that this pose explains.

@@ -1,4 +1,5 @@
-"""One scan to one pose correction: the paper's five steps, then the refinement of §3.3.
+"""One scan to one pose correction: the paper's five steps, then the refinement
+(docs/method.md §3).
 
     points ─▶ vote ─▶ peaks ─▶ refine ─▶ associate with the map ─▶ displacement ─▶ pose
 
@@ -91,7 +92,7 @@ def scan_reach(points: NDArray[np.float64]) -> float:
 
 def observe_lines(points: NDArray[np.float64], config: HoughConfig
                   ) -> tuple[HoughGrid, NDArray[np.int64], Lines]:
-    """Steps 2–3 and §3.3: vote, find peaks, refine them to lines (strongest first)."""
+    """Steps 2–3 and the refinement: vote, find peaks, refine them to lines (strongest first)."""
     grid = make_grid(config)
     acc = vote(points, grid)
     peaks = find_peaks(acc, len(points), config, limit=2 * config.max_peaks)
@@ -118,7 +119,7 @@ def localize_scan(
     pose_cov: ArrayLike | None = None,
     observed: tuple[HoughGrid, NDArray[np.int64], Lines] | None = None,
 ) -> ScanCorrection:
-    """Correct ``guess`` (x, y, θ) with the robot-frame points of one scan (DESIGN §3, §6).
+    """Correct ``guess`` (x, y, θ) with the robot-frame points of one scan (docs/method.md §1–5).
 
     ``pose_cov`` is the guess's covariance (e.g. the filter's); it sets the matching gates.
     Without it the guess is assumed good to ``guess_sigma_xy`` and ``guess_sigma_theta_deg``.

@@ -1,4 +1,4 @@
-"""Correspondence between observed lines and the map's reference points (DESIGN §3.5).
+"""Correspondence between observed lines and the map's reference points (docs/method.md §5).
 
 Tracking mode, the paper's strategy (i): each observed line is compared with every predicted
 reference point by the Mahalanobis distance whose covariance adds the pose uncertainty projected

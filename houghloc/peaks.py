@@ -1,5 +1,5 @@
-"""Local maxima of the accumulator (DESIGN §3.2): a vote threshold relative to the number of points
-and non-maximum suppression in a window that wraps around θ."""
+"""Local maxima of the accumulator (docs/method.md §2): a vote threshold relative to the number of
+points and non-maximum suppression in a window that wraps around θ."""
 
 from __future__ import annotations
 

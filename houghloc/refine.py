@@ -1,4 +1,4 @@
-"""Refinement of Hough peaks to continuous lines (DESIGN §3.3).
+"""Refinement of Hough peaks to continuous lines (docs/method.md §3).
 
 The grid bounds the paper's precision (3°, 10 cm). Each peak's inlier points — those within a band
 of its line — are fitted by total least squares, the band is narrowed to the fit's own scatter, and

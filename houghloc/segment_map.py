@@ -1,4 +1,4 @@
-"""The segment map and its reference points in the Hough domain (DESIGN §3.4).
+"""The segment map and its reference points in the Hough domain (docs/method.md §4).
 
 A map is a set of segments of two kinds: ``wall`` (range sensors see it, it occludes) and ``line``
 (painted on the floor: only a camera sees it, it occludes nothing). Collinear segments — a wall
@@ -165,7 +165,8 @@ class SegmentMap:
     # ---------------------------------------------------------------- construction
     @classmethod
     def from_yaml(cls, path: str | Path) -> SegmentMap:
-        """Load a map YAML (DESIGN §6); :class:`MapError` names the file, entry and problem."""
+        """Load a map YAML (docs/architecture.md, formats); :class:`MapError` names the file,
+        entry and problem."""
         path = Path(path)
         raw = read_yaml(path, MapError, "map")
         if raw is None:
@@ -213,7 +214,7 @@ class SegmentMap:
         return out
 
     def to_yaml_text(self) -> str:
-        """The map YAML of DESIGN §6."""
+        """The map YAML of docs/architecture.md, formats."""
         return yaml.safe_dump(self.to_dict(), sort_keys=False, width=120)
 
     def to_yaml(self, path: str | Path) -> None:
@@ -304,7 +305,7 @@ class SegmentMap:
         kinds: tuple[str, ...] = ("wall",),
         n_rays: int = 180,
     ) -> References:
-        """Predicted Hough points of the lines visible from ``pose`` (DESIGN §3.4).
+        """Predicted Hough points of the lines visible from ``pose`` (docs/method.md §4).
 
         Walls are kept if a ray from the pose hits them first (walls occlude, painted lines do
         not); painted lines are kept if they come within range.

@@ -1,4 +1,4 @@
-"""The Hough grid and its voting (DESIGN §3.1–3.2).
+"""The Hough grid and its voting (docs/method.md §1–2).
 
 Normal form ρ = x cos θ + y sin θ with θ ∈ [0, 2π) and ρ ≥ 0: in the robot frame every line has
 one point and θ is cyclic. A few cells below ρ = 0 (``rho_margin_cells``) catch lines through the

@@ -9,6 +9,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from fusion.resources import configs_dir
+
 
 def find_repo_root(start: str | Path | None = None) -> Path:
     """The checkout that holds ``pyproject.toml`` and ``houghloc/``, from here or above.
@@ -23,9 +25,12 @@ def find_repo_root(start: str | Path | None = None) -> Path:
     raise FileNotFoundError(f"no houghloc checkout at or above {here}")
 
 
-REPO_ROOT = find_repo_root()
-CONFIGS = REPO_ROOT / "fusion" / "configs"
-FIGURES_DIR = REPO_ROOT / "docs" / "images"
+try:
+    REPO_ROOT: Path | None = find_repo_root()
+except FileNotFoundError:  # a notebook copied elsewhere, with houghloc installed as a package
+    REPO_ROOT = None
+CONFIGS = configs_dir()  # the packaged configurations, wherever houghloc is installed
+FIGURES_DIR = None if REPO_ROOT is None else REPO_ROOT / "docs" / "images"
 SAVE_FIGURES = os.environ.get("SAVE_FIGURES", "") == "1"
 """``SAVE_FIGURES=1`` in the environment writes the README pictures to ``docs/images/``."""
 
@@ -33,19 +38,24 @@ SAVE_FIGURES = os.environ.get("SAVE_FIGURES", "") == "1"
 def data_dir() -> Path | None:
     """The folder of real logs (intel/, fr079/, aces/), or None when it is not there.
 
-    Looked for in ``$HOUGHLOC_DATA``, ``<repo>/data`` and ``<repo>/../shared/data``.
+    ``$HOUGHLOC_DATA`` when it is set; otherwise ``./data``, ``<repo>/data`` and
+    ``<repo>/../shared/data``.
     """
-    candidates = [os.environ.get("HOUGHLOC_DATA"), REPO_ROOT / "data",
-                  REPO_ROOT.parent / "shared" / "data"]
+    if os.environ.get("HOUGHLOC_DATA"):  # named: only there
+        named = Path(os.environ["HOUGHLOC_DATA"])
+        return named if named.is_dir() and any(named.iterdir()) else None
+    candidates: list[Path] = [Path.cwd() / "data"]
+    if REPO_ROOT is not None:
+        candidates += [REPO_ROOT / "data", REPO_ROOT.parent / "shared" / "data"]
     for candidate in candidates:
-        if candidate and Path(candidate).is_dir() and any(Path(candidate).iterdir()):
-            return Path(candidate)
+        if candidate.is_dir() and any(candidate.iterdir()):
+            return candidate
     return None
 
 
 def save_figure(fig: Any, name: str) -> Path | None:
     """Write ``docs/images/<name>.png`` when ``SAVE_FIGURES=1``; otherwise do nothing."""
-    if not SAVE_FIGURES:
+    if not SAVE_FIGURES or FIGURES_DIR is None or REPO_ROOT is None:
         return None
     FIGURES_DIR.mkdir(parents=True, exist_ok=True)
     path = FIGURES_DIR / f"{name}.png"

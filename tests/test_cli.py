@@ -1,9 +1,9 @@
 """Tests of the ``houghloc`` command line: damaged logs and the demo.
 
 A damaged log must give warnings and a valid trajectory — never a NaN pose, a traceback or a
-half-written output file (DESIGN §6). Each damage is applied to a short simulated CARMEN log whose
-ground truth is known, so the tests also check that the trajectory is still *right*, not just
-well-formed.
+half-written output file (docs/architecture.md, formats). Each damage is applied to a short
+simulated CARMEN log whose ground truth is known, so the tests also check that the trajectory
+is still *right*, not just well-formed.
 """
 
 from __future__ import annotations

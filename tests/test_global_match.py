@@ -1,4 +1,5 @@
-"""Global set matching (DESIGN §3.6): poses found without a guess, symmetry reported, bad input."""
+"""Global set matching (docs/method.md §6): poses found without a guess, symmetry reported,
+bad input."""
 
 from __future__ import annotations
 

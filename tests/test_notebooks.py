@@ -11,6 +11,7 @@ The notebooks' parameter cells are sized so each runs in well under a minute on 
 from __future__ import annotations
 
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -36,13 +37,13 @@ def _real_data_available() -> bool:
     return data_dir() is not None
 
 
-def _execute(path: Path) -> nbformat.NotebookNode:
+def _execute(path: Path, **env: str) -> nbformat.NotebookNode:
     notebook = nbformat.read(path, as_version=4)
     client = nbclient.NotebookClient(
         notebook, timeout=CELL_TIMEOUT, kernel_name="python3", allow_errors=False,
         resources={"metadata": {"path": str(NOTEBOOKS_DIR)}})
     client.execute(env={**os.environ, "MPLBACKEND": "module://matplotlib_inline.backend_inline",
-                        "SAVE_FIGURES": "", "TQDM_MININTERVAL": "5"})
+                        "SAVE_FIGURES": "", "TQDM_MININTERVAL": "5", **env})
     return notebook
 
 
@@ -76,3 +77,19 @@ def test_notebook_runs_and_plots(path: Path) -> None:
         pytest.skip(f"{path.name} ran without the real logs (nothing to plot)")
     assert images, f"{path.name} produced no figure"
     assert elapsed < 120, f"{path.name} took {elapsed:.0f} s; shrink its parameter cell"
+    if path.name == "05_real_log_end_to_end.ipynb":  # the defaults track the slice
+        text = "".join(o.get("text", "") for o in outputs if o.output_type == "stream")
+        match = re.search(r"against the reference: RMSE ([0-9.]+) cm.*?lost .*? ([0-9]+) %",
+                          text)
+        assert match, text
+        assert float(match[1]) < 8.0 and int(match[2]) == 0, match[0]
+
+
+def test_the_real_log_notebook_says_when_the_data_is_missing(tmp_path: Path) -> None:
+    """Without the logs every cell of notebook 05 says it skipped, and why."""
+    notebook = _execute(NOTEBOOKS_DIR / "05_real_log_end_to_end.ipynb",
+                        HOUGHLOC_DATA=str(tmp_path))
+    code = [c for c in notebook.cells if c.cell_type == "code"][2:]  # after the parameters
+    for cell in code:
+        text = "".join(o.get("text", "") for o in cell.outputs if o.output_type == "stream")
+        assert "skipped: the real logs are not here" in text, cell.source[:80]

@@ -157,6 +157,28 @@ def test_matched_points_take_their_map_lines_colour(
     assert np.isin(packed[fix.matched_map_lines], colours).all()
 
 
+def test_walls_in_one_colour_and_each_scans_matched_walls_in_their_lines_colours(
+        recording: dict[str, list[pa.RecordBatch]], robocup: SegmentMap, drive: list) -> None:
+    """Walls are drawn in one colour; at each scan the walls of the matched map lines are drawn
+    over them, each in its line's colour, the colour of the points on it."""
+    walls = values(recording["world/map/walls"], "LineStrips2D:colors")
+    assert len(np.unique(walls)) == 1
+    matched = recording["world/map/matched"]
+    assert scan_indices(matched) == list(range(N_SCANS))
+    is_wall = np.asarray(robocup.kinds) == "wall"
+    line_of = np.asarray(robocup.line_of_segment)[is_wall]
+    counts = [len(s) for b in matched for s in b.column("LineStrips2D:strips").to_pylist()]
+    expected = [int(np.isin(line_of, fix.matched_map_lines).sum()) for *_, fix, _ in drive]
+    assert counts == expected and min(expected) >= 2
+    palette = line_palette(int(line_of.max()) + 1)
+    packed = (palette[:, 0].astype(np.uint32) << 24 | palette[:, 1].astype(np.uint32) << 16
+              | palette[:, 2].astype(np.uint32) << 8 | palette[:, 3])
+    drawn = values(matched, "LineStrips2D:colors").astype(np.uint32)
+    first = drive[0][3].matched_map_lines
+    assert np.array_equal(drawn[:expected[0]], packed[line_of[np.isin(line_of, first)]])
+    assert walls[0] not in set(packed[first].tolist())  # the highlight stands out
+
+
 def test_accumulator_every_n_scans(tmp_path: Path, robocup: SegmentMap, drive: list) -> None:
     path = tmp_path / "sparse.rrd"
     replay(RerunLogger(path, accumulator_every=5), robocup, drive)

@@ -56,12 +56,10 @@ class AmbiguityConfig(BaseModel):
         0.5, ge=0.0, le=1.0, description="a fix with a fraction of points on walls below this "
         "times the recent typical fraction is a misfit (0 turns the check off)")
     fit_window: int = Field(20, ge=3, description="recent used fixes that set the typical fit")
-    # The scan's own points on the map's walls judge a fix that the matcher alone cannot. On
-    # Intel and ACES, of the fixes that put 0.1 fewer of the points on walls than the filter's
-    # guess did, 28 of 34 were wrong (> 2° or 15 cm from the reference): two lines of a corner
-    # matched to the wrong walls while the robot spins pass every gate. Single-line fixes and
-    # fixes whose lines disagree (a map wall modelled a degree off) that put clearly more points
-    # on walls than the guess were right in 4 of 5 cases: the odometry had slipped in a turn.
+    # The scan's own points on the map's walls judge a fix that the matcher alone cannot: two
+    # lines of a corner matched to the wrong walls pass every gate yet move the scan off the
+    # walls; a single-line fix that puts clearly more points on walls than the guess corrects a
+    # slip (the measurements: docs/experiments.md, "The fit of a scan on the walls").
     max_fit_loss: float | None = Field(
         0.03, ge=0.0, le=1.0, description="a fix whose fraction of points on walls is below "
         "the guess's by more than this is a misfit (None: no such check)")
@@ -96,12 +94,9 @@ class AmbiguityConfig(BaseModel):
         1.0, gt=0.0, description="m; radius of the local re-search (None: no local search)")
     local_search_theta_deg: float = Field(20.0, gt=0.0, le=180.0,
                                           description="°; heading range of the local re-search")
-    # What keeps a wrong pose out is a rival, not a level: a cluttered room fits 0.45-0.7 at the
-    # right pose where a corridor fits 0.8, so a pose needing 0.9 of the recent fixes' fraction
-    # was refused there, and lowering that level alone let wrong poses in (Freiburg 079: at a
-    # reversal a pose 23° off led the right one by 0.06; 0.6 of the recent fraction with a rival
-    # margin of 0.05: 9.8 % lost). With a margin of 0.1 the level hardly matters (0 to 0.5:
-    # 3.97-3.99 % lost; margin 0.15: 4.7 %); Intel and ACES are unchanged by either.
+    # What keeps a wrong pose out is a rival, not a level: how much of a scan lies on walls
+    # at the right pose varies from room to room (clutter), a margin over every other pose in
+    # the neighbourhood does not (docs/experiments.md, "The local re-search").
     local_fit_gain: float = Field(
         0.1, ge=0.0, le=1.0, description="the pose found must put this much more of the scan's "
         "points on walls than the guess ...")
@@ -115,9 +110,7 @@ class AmbiguityConfig(BaseModel):
     # re-search to a wrong pose that merely fits it a little better: shortly after a used fix the
     # odometry cannot have slipped far, so a pose found is accepted only within reach of the
     # motion since that fix (a reversal the wheels report as forward motion errs by twice it).
-    # Freiburg 079 at 898.0 s: 0.14 s after an accepted fix a re-search moved the estimate
-    # 0.77 m; refused, 0.3 → 0.1 % lost and ATE 5.5 → 4.8 cm (3.0 per metre: the same; Intel
-    # and ACES unchanged). The heading is not limited: slips in turns are what it recovers.
+    # The heading is not limited: slips in turns are what it recovers.
     local_reach_base: float = Field(
         0.25, gt=0.0, description="m; the pose found may be this far from the guess ...")
     local_reach_per_metre: float | None = Field(

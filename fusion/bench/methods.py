@@ -3,8 +3,7 @@ way: its events in order, its start pose, its map source. Each returns the pose 
 (at the scan's stamp) and the CPU time spent localizing (reading the log and building the map
 excluded).
 
-* ``houghloc``: :func:`fusion.replay.replay` through a :class:`~fusion.Localizer`, as
-  ``houghloc run`` does.
+* ``houghloc``: :func:`fusion.run_log.run_log`, as ``houghloc run`` does.
 * ``odometry``: dead reckoning from the start pose.
 * ``icp``: scan-to-map point-to-point ICP (``small_gicp``) on the map's points, each scan
   started from the last estimate moved by the odometry since.
@@ -74,14 +73,15 @@ def _base_points(scan: Scan, sensor: SensorConfig) -> NDArray[np.float64]:
 
 
 def _houghloc(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
-    from fusion.localizer import Localizer
-    from fusion.replay import replay
+    from fusion.run_log import run_log
 
-    localizer = Localizer(piece.map_source.segment_map, config, piece.start)
+    segment_map = piece.map_source.segment_map
     cpu = time.process_time()
-    result = replay(piece.events, localizer, progress=False, time_scans=True)
+    run = run_log(piece.events, segment_map, config, initial_pose=piece.start, progress=False,
+                  time_scans=True)
     cpu = time.process_time() - cpu
-    return Localized(result.trajectory, cpu, dict(localizer.stats.statuses), result.scan_cpu)
+    return Localized(run.result.trajectory, cpu, dict(run.localizer.stats.statuses),
+                     run.result.scan_cpu)
 
 
 class _DeadReckoning:

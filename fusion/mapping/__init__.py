@@ -1,4 +1,5 @@
-"""Segment maps from corrected logs or occupancy grids (``houghloc map build``, DESIGN §3.4, §6).
+"""Segment maps from corrected logs or occupancy grids (``houghloc map build``; the map:
+docs/method.md §4, its file: docs/architecture.md).
 
 The pipeline, one function per stage:
 
