@@ -1,21 +1,27 @@
 """Per-scan data kept in columns and sent with one ``send_columns`` call per entity (one
-``log`` call costs ~100 µs whatever its size; a row in a batch a few µs), and the paths drawn
-with a number of entities logarithmic in the run's length.
+``log`` call costs ~100 µs whatever its size; a row in a batch a few µs), the paths drawn with a
+number of entities logarithmic in the run's length, and the error series computed as the truth
+arrives.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from collections import deque
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
 import rerun as rr
 from numpy.typing import ArrayLike, NDArray
 
-if TYPE_CHECKING:
-    pass
+from houghloc.geometry import wrap_angle
 
-
+# Scans buffered per send_columns call. Each call makes one chunk per entity, and a file sink
+# keeps a few kB of metadata per chunk until its footer is written at the end: fewer, larger
+# chunks keep a long recording's memory flat.
+BATCH_SCANS = 2000
+TRUTH_TOLERANCE = 0.5  # s; a truth sample this close stands in for one at the estimate's time
+MAX_PENDING_ERRORS = 10 * BATCH_SCANS  # estimates kept waiting for truth that may never come
 PATH_PIECE = 50  # poses re-sent at every scan; older ones are re-sent ~log2(n / this) times
 
 
@@ -119,3 +125,70 @@ def join_rows(name: str, rows: list) -> Any:
     if isinstance(rows[0], list):
         return pa.array([item for row in rows for item in row], type=pa.utf8())
     return np.concatenate(rows)
+
+
+class ErrorSeries:
+    """Position and heading errors of the estimates against the truth interpolated at their
+    times, as the truth arrives (truth and scans of one instant come in either order).
+
+    An estimate waits until truth at or after its time has arrived; at the end, truth within
+    ``TRUTH_TOLERANCE`` will do. Only the truth the waiting estimates can still need is kept,
+    and at most ``MAX_PENDING_ERRORS`` estimates wait (if no truth ever comes, the newest)."""
+
+    def __init__(self) -> None:
+        self._truth_t: list[float] = []
+        self._truth: list[tuple[float, float, float]] = []
+        # (t, scan, x, y, θ) of estimates awaiting truth
+        self._pending: deque[tuple[float, int, float, float, float]] = deque(
+            maxlen=MAX_PENDING_ERRORS)
+
+    def add_truth(self, t: float, pose: ArrayLike) -> bool:
+        """Keep a truth sample; False for one older than the last (interpolation needs
+        increasing times, and a late sample adds nothing)."""
+        x, y, theta = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
+        if self._truth_t and t < self._truth_t[-1]:
+            return False
+        self._truth_t.append(float(t))
+        self._truth.append((x, y, theta))
+        return True
+
+    def latest_truth(self) -> NDArray[np.float64]:
+        return np.asarray(self._truth[-1])
+
+    def add_estimate(self, t: float, scan: int, pose: NDArray[np.float64]) -> None:
+        self._pending.append((t, scan, float(pose[0]), float(pose[1]), float(pose[2])))
+
+    def ready(self, final: bool) -> list[tuple[str, float, int, float]]:
+        """(series, t, scan, value) of every estimate whose error is known now (``final``: the
+        run is over, no more truth will come)."""
+        if not self._truth_t or not self._pending:
+            if final:
+                self._pending.clear()
+            return []
+        truth_t = np.asarray(self._truth_t)
+        truth = np.asarray(self._truth)
+        pending = np.asarray(self._pending)
+        t = pending[:, 0]
+        inside = (t >= truth_t[0]) & (t <= truth_t[-1])
+        ready = inside | (t < truth_t[0]) | final  # before the first truth: none will come
+        nearest = np.clip(t, truth_t[0], truth_t[-1])
+        use = ready & (inside | (np.abs(t - nearest) <= TRUTH_TOLERANCE))
+        rows: list[tuple[str, float, int, float]] = []
+        if use.any():
+            at = nearest[use]
+            reference = np.column_stack((np.interp(at, truth_t, truth[:, 0]),
+                                         np.interp(at, truth_t, truth[:, 1]),
+                                         np.interp(at, truth_t, np.unwrap(truth[:, 2]))))
+            est = pending[use]
+            position = np.hypot(est[:, 2] - reference[:, 0], est[:, 3] - reference[:, 1])
+            heading = np.degrees(np.abs(wrap_angle(est[:, 4] - reference[:, 2])))
+            for name, values in (("error/position", position), ("error/heading", heading)):
+                rows += [(name, ti, int(scan), value) for (ti, scan), value
+                         in zip(est[:, :2].tolist(), values.tolist(), strict=True)]
+        self._pending = deque((row for row, done in zip(self._pending, ready, strict=True)
+                               if not done), maxlen=MAX_PENDING_ERRORS)
+        # keep only the truth the pending estimates can still need
+        oldest = min(row[0] for row in self._pending) if self._pending else truth_t[-1]
+        first = max(int(np.searchsorted(truth_t, oldest, side="right")) - 1, 0)
+        del self._truth_t[:first], self._truth[:first]
+        return rows

@@ -62,7 +62,6 @@ import math
 import subprocess
 import time
 import uuid
-from collections import deque
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
@@ -71,7 +70,7 @@ import numpy as np
 import rerun as rr
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.rerun_columns import ColumnBatch, PathPieces
+from fusion.rerun_columns import BATCH_SCANS, ColumnBatch, ErrorSeries, PathPieces
 from fusion.rerun_serve import GRPC_PORT, SERVE_HOST, WEB_PORT, die_with_parent, web_viewer_command
 from fusion.rerun_view import (
     ARROW_LENGTH,
@@ -101,17 +100,11 @@ if TYPE_CHECKING:
 
 _log = logging.getLogger(__name__)
 
-# Scans buffered per send_columns call. Each call makes one chunk per entity, and a file sink
-# keeps a few kB of metadata per chunk until its footer is written at the end: fewer, larger
-# chunks keep a long recording's memory flat.
-BATCH_SCANS = 2000
 BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
 IMAGE_BATCH = 100  # Hough images buffered at most (5 MB on a 3° × 10 cm grid)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
 UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulation's
-TRUTH_TOLERANCE = 0.5  # s; a truth sample this close stands in for one at the estimate's time
-MAX_PENDING_ERRORS = 10 * BATCH_SCANS  # estimates kept waiting for truth that may never come
 
 METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
            "sigma/theta", "matches", "error/position", "error/heading")
@@ -132,6 +125,11 @@ class RerunLogger:
     Per-scan data is buffered and sent in columns every ``BATCH_SCANS`` scans (or, when
     serving, ``BATCH_SECONDS`` of wall time), and by :meth:`flush` / :meth:`close` (the Hough
     images also every ``IMAGE_BATCH``); the state log and the hypotheses are logged at once.
+
+    About 400 lines, on purpose: every stage's writer shares the one stream, its batches, its
+    time columns and the map's colours; the parts that stand alone are apart (the look:
+    :mod:`fusion.rerun_view`; the columns, paths and error series: :mod:`fusion.rerun_columns`;
+    the served viewer: :mod:`fusion.rerun_serve`).
     """
 
     def __init__(self, path: str | Path | None = None, *, serve: bool = False,
@@ -182,12 +180,8 @@ class RerunLogger:
         self._paths = {name: PathPieces(f"world/path/{name}") for name in PATH_COLOURS}
         self._odometry: NDArray[np.float64] | None = None
         self._odometry_anchor: tuple[NDArray, NDArray] | None = None  # (est₀, odom₀)
-        self._truth_t: list[float] = []
-        self._truth: list[tuple[float, float, float]] = []
+        self._error_series = ErrorSeries()
         self._truth_unlogged = False
-        # (t, scan, x, y, θ) of estimates awaiting truth; if none ever comes, the newest are kept
-        self._pending: deque[tuple[float, int, float, float, float]] = deque(
-            maxlen=MAX_PENDING_ERRORS)
         for name in METRICS:
             self.stream.log(f"metrics/{name}", rr.SeriesLines(
                 names=SERIES_NAMES.get(name, name.split("/")[-1]),
@@ -247,12 +241,8 @@ class RerunLogger:
 
     def log_truth(self, t: float, pose: ArrayLike) -> None:
         """Ground truth: kept for the error series; drawn (robot and path) at the next scan."""
-        x, y, theta = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
-        if self._truth_t and t < self._truth_t[-1]:
-            return  # interpolation needs increasing times; a late truth sample adds nothing
-        self._truth_t.append(float(t))
-        self._truth.append((x, y, theta))
-        self._truth_unlogged = True
+        if self._error_series.add_truth(t, pose):
+            self._truth_unlogged = True
 
     def log_state(self, t: float, state: str, reason: str) -> None:
         """A transition of the ambiguity manager, as a text log whose level follows the state."""
@@ -407,7 +397,7 @@ class RerunLogger:
                               compose(first_estimate, relative(first_odometry, self._odometry)))
         if self._truth_unlogged:
             self._truth_unlogged = False
-            truth = np.asarray(self._truth[-1])
+            truth = self._error_series.latest_truth()
             self._batch("world/robot/truth", rr.Arrows2D).add(
                 t, index, 1, origins=truth[None, :2], vectors=heading_vector(truth))
             self._extend_path(t, index, "truth", truth)
@@ -504,48 +494,17 @@ class RerunLogger:
             self._scalar(name, t, index, value)
         matches = getattr(correction, "matches", None)
         self._scalar("matches", t, index, len(matches) if matches is not None else 0)
-        self._pending.append((t, index, float(pose[0]), float(pose[1]), float(pose[2])))
+        self._error_series.add_estimate(t, index, pose)
 
     def _scalar(self, name: str, t: float, index: int, value: float) -> None:
         self._batch(f"metrics/{name}", rr.Scalars).add(
             t, index, 1, scalars=np.array([value], dtype=float))
 
     def _errors(self, final: bool) -> None:
-        """Errors of the pending estimates against truth interpolated at their times.
-
-        An estimate waits until truth at or after its time has arrived (truth and scans of one
-        instant come in either order); at the end, truth within ``TRUTH_TOLERANCE`` will do.
-        """
-        if not self._truth_t or not self._pending:
-            if final:
-                self._pending.clear()
-            return
-        truth_t = np.asarray(self._truth_t)
-        truth = np.asarray(self._truth)
-        pending = np.asarray(self._pending)
-        t = pending[:, 0]
-        inside = (t >= truth_t[0]) & (t <= truth_t[-1])
-        ready = inside | (t < truth_t[0]) | final  # before the first truth: none will come
-        nearest = np.clip(t, truth_t[0], truth_t[-1])
-        use = ready & (inside | (np.abs(t - nearest) <= TRUTH_TOLERANCE))
-        if use.any():
-            at = nearest[use]
-            reference = np.column_stack((np.interp(at, truth_t, truth[:, 0]),
-                                         np.interp(at, truth_t, truth[:, 1]),
-                                         np.interp(at, truth_t, np.unwrap(truth[:, 2]))))
-            est = pending[use]
-            position = np.hypot(est[:, 2] - reference[:, 0], est[:, 3] - reference[:, 1])
-            heading = np.degrees(np.abs(wrap_angle(est[:, 4] - reference[:, 2])))
-            for name, values in (("error/position", position), ("error/heading", heading)):
-                batch = self._batch(f"metrics/{name}", rr.Scalars)
-                for (ti, scan), value in zip(est[:, :2].tolist(), values.tolist(), strict=True):
-                    batch.add(ti, int(scan), 1, scalars=np.array([value]))
-        self._pending = deque((row for row, done in zip(self._pending, ready, strict=True)
-                               if not done), maxlen=MAX_PENDING_ERRORS)
-        # keep only the truth the pending estimates can still need
-        oldest = min(row[0] for row in self._pending) if self._pending else truth_t[-1]
-        first = max(int(np.searchsorted(truth_t, oldest, side="right")) - 1, 0)
-        del self._truth_t[:first], self._truth[:first]
+        """The error series of the estimates whose truth has arrived (:class:`ErrorSeries`)."""
+        for name, t, scan, value in self._error_series.ready(final):
+            self._batch(f"metrics/{name}", rr.Scalars).add(t, scan, 1,
+                                                          scalars=np.array([value]))
 
     # ---------------------------------------------------------------- serving
     def _start_web_viewer(self, web_port: int) -> None:

@@ -100,7 +100,11 @@ def _node_time(node: _Node) -> float:
 
 
 class PoseTracker:
-    """The pose estimate over time: odometry predictions and (possibly late) pose updates."""
+    """The pose estimate over time: odometry predictions and (possibly late) pose updates.
+
+    One class of about 430 lines, on purpose: every method that adds, re-filters or trims
+    nodes must keep the history's invariants (time order, the provisional node, the stale
+    marks, the trimmed prefix), and they are checked in one place rather than across parts."""
 
     def __init__(
         self,

@@ -65,7 +65,7 @@ def refine_lines(points: NDArray[np.float64], theta0: NDArray, rho0: NDArray,
 
     ``weights`` (relative, mean 1) make it a weighted TLS: var θ = σ²/Σwᵢ(sᵢ − s̄)², var = σ²/Σwᵢ.
     The steps, compiled as one kernel: (1) the inliers of each peak within one ρ cell (or
-    ``refine_max_band``) are fitted (:func:`_tls`) and the band narrowed to
+    ``refine_max_band``) are fitted (`tls_fit`) and the band narrowed to
     ``refine_band_sigmas`` times the fit's scatter, ``refine_iterations − 1`` times; (2) peaks
     that are one line with a stronger one are dropped (:func:`_distinct`); (3) each point joins
     the nearest line whose band holds it, and only contiguous pieces are kept
@@ -107,7 +107,7 @@ def _refine_kernel(points: NDArray, w: NDArray, unit: bool, theta: NDArray, rho:
         if it:
             mask = _inliers(points, theta, rho, band)
         sums = _masked_sums(mono, mask)
-        theta, rho, mean_sq, weight, _, _ = _tls(sums)
+        theta, rho, mean_sq, weight, _, _, _ = tls_fit(sums)
         for j in range(k):
             band[j] = min(max(band_sigmas * math.sqrt(mean_sq[j]), min_band), max_band)
     # (2) one line per wall
@@ -134,7 +134,7 @@ def _refine_kernel(points: NDArray, w: NDArray, unit: bool, theta: NDArray, rho:
         if label[i] >= 0:
             on_line[i, label[i]] = True
             count[label[i]] += 1.0
-    theta, rho, mean_sq, weight, centroid, spread_var = _tls(_masked_sums(mono, on_line))
+    theta, rho, mean_sq, weight, centroid, spread_var, _ = tls_fit(_masked_sums(mono, on_line))
     if unit:
         count = weight
     cos_t, sin_t = np.cos(theta), np.sin(theta)
@@ -191,16 +191,18 @@ def _masked_sums(mono: NDArray, mask: NDArray[np.bool_]) -> NDArray:
 
 
 @njit
-def _tls(sums: NDArray) -> tuple:
-    """Total-least-squares lines from each column's masked sums (:func:`_masked_sums`).
+def tls_fit(sums: NDArray) -> tuple:
+    """Total-least-squares lines from each column's sums of [1, x, y, x², xy, y²] (weighted or
+    not: :func:`_masked_sums`; the map builder's moments use it too).
 
-    The scatter matrix comes from the sums of [1, x, y, x², xy, y²]; the normal is the
-    eigenvector of its smallest eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, the mean square
-    residual Σwr²/W, the weight W = Σw (the count N for unit weights), the centroid c (2×K) and
-    the variance along the line (the spread of the points).
+    The scatter matrix comes from the sums; the normal is the eigenvector of its smallest
+    eigenvalue. Returns normal angle θ (ρ ≥ 0), ρ, the mean square residual Σwr²/W, the weight
+    W = Σw (the count N for unit weights), the centroid c (2×K), the variance along the line (the
+    spread of the points), and the principal axis's angle in (−π/2, π/2] (the line's direction).
     """
     k = sums.shape[1]
     theta, rho, mean_sq, spread = np.empty(k), np.empty(k), np.empty(k), np.empty(k)
+    axis = np.empty(k)
     centroid = np.empty((2, k))
     for j in range(k):
         n = max(sums[0, j], 1.0)
@@ -208,7 +210,8 @@ def _tls(sums: NDArray) -> tuple:
         sxx = sums[3, j] / n - cx * cx
         sxy = sums[4, j] / n - cx * cy
         syy = sums[5, j] / n - cy * cy
-        t = 0.5 * math.atan2(2.0 * sxy, sxx - syy) + 0.5 * np.pi  # normal ⊥ principal axis
+        axis[j] = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+        t = axis[j] + 0.5 * np.pi  # normal ⊥ principal axis
         half_sum, root = 0.5 * (sxx + syy), math.hypot(0.5 * (sxx - syy), sxy)
         r = cx * math.cos(t) + cy * math.sin(t)
         if r < 0:
@@ -216,7 +219,7 @@ def _tls(sums: NDArray) -> tuple:
         theta[j], rho[j] = t % TWO_PI, abs(r)
         mean_sq[j], spread[j] = max(half_sum - root, 0.0), half_sum + root
         centroid[0, j], centroid[1, j] = cx, cy
-    return theta, rho, mean_sq, sums[0].copy(), centroid, spread
+    return theta, rho, mean_sq, sums[0].copy(), centroid, spread, axis
 
 
 @njit

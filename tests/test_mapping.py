@@ -118,15 +118,15 @@ def test_occluded_gap_is_bridged_but_a_seen_through_gap_is_not() -> None:
 
 
 def _lines(*segments: tuple[tuple[float, float], tuple[float, float]]):
-    from fusion.mapping.segments import _lines_from_ends
+    from fusion.mapping.lines import lines_from_ends
 
     a = np.array([s[0] for s in segments], dtype=float)
     b = np.array([s[1] for s in segments], dtype=float)
-    return _lines_from_ends(a, b)
+    return lines_from_ends(a, b)
 
 
 def test_near_duplicate_lines_of_one_face_are_merged_onto_one_line() -> None:
-    from fusion.mapping.segments import _merge_duplicates
+    from fusion.mapping.pieces import merge_duplicates
 
     tilt = math.tan(math.radians(2.0))
     lines = _lines(((0.0, 0.0), (6.0, 0.0)),             # a wall, seen from +y
@@ -136,7 +136,7 @@ def test_near_duplicate_lines_of_one_face_are_merged_onto_one_line() -> None:
                    ((1.0, 0.4), (4.0, 0.4)))             # a different wall, 40 cm away
     up, down = (0.0, 1.0), (0.0, -1.0)
     facing = np.array([up, up, up, down, up])
-    merged = _merge_duplicates(lines, facing, math.radians(6.0), 0.15, 2.0, 0.25)
+    merged = merge_duplicates(lines, facing, math.radians(6.0), 0.15, 2.0, 0.25)
     m = SegmentMap(merged.starts, merged.ends)
     assert len(m) == 4  # the duplicate joined the wall; the door still splits it
     assert m.n_lines == 3  # wall (both pieces on one line), its other face, the far wall
@@ -150,7 +150,7 @@ def test_near_duplicate_lines_of_one_face_are_merged_onto_one_line() -> None:
     assert extents[1][0] == pytest.approx(7.0, abs=0.02)
     assert extents[1][1] == pytest.approx(8.0, abs=0.02)
     # Nothing to merge: unchanged.
-    single = _merge_duplicates(_lines(((0.0, 0.0), (1.0, 0.0))), np.array([up]),
+    single = merge_duplicates(_lines(((0.0, 0.0), (1.0, 0.0))), np.array([up]),
                                math.radians(6.0), 0.15, 2.0, 0.25)
     assert len(single) == 1
 

@@ -21,7 +21,8 @@ from typing import Any
 
 from fusion.events import Event, ReadStats
 from fusion.io.camera_points import read_camera_points
-from fusion.io.carmen import CarmenLog, FlaserSpacing, flaser_angles, read_carmen
+from fusion.io.carmen import CarmenLog, read_carmen
+from fusion.io.carmen_records import FlaserSpacing, flaser_angles
 from fusion.io.errors import LogError
 from fusion.io.files import atomic_write_json, atomic_write_text
 from fusion.io.intel_mat import IntelMatLog, read_intel_mat

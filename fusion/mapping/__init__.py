@@ -61,8 +61,9 @@ from fusion.mapping.grid import (
     read_reference_scans,
     scan_endpoints,
 )
+from fusion.mapping.refit import nearest_segment, refit_to_endpoints
 from fusion.mapping.ros_map import load_ros_map
-from fusion.mapping.segments import extract_segments, nearest_segment, refit_to_endpoints
+from fusion.mapping.segments import extract_segments
 from houghloc.segment_map import SegmentMap
 
 __all__ = [
