@@ -1,14 +1,6 @@
-"""The error metrics: ATE, RPE, the "lost" fraction, Kümmerle relation errors.
-
-In the spirit of ``evo``: each metric is a small class configured once (``ATE(alignment=...)``)
-whose ``compute`` returns a result with per-sample errors, a few statistics and ``as_dict()`` for
-``metrics.json``. Units: metres for positions; headings are radians in the arrays and degrees in
-the reported statistics (the ``_deg`` keys), as in Kümmerle et al. 2009.
-
-Estimated and reference trajectories are paired by timestamp (``associate``): each estimate takes
-the nearest reference within ``max_dt`` (default 0.02 s), one to one. The localizer and the
-reference are both in the ``map`` frame, so ATE uses no alignment by default; ``Alignment.SE2``
-(closed-form 2D Kabsch/Umeyama without scale) is for paths in their own frame, like odometry.
+"""The error metrics: ATE, RPE, the "lost" fraction, Kümmerle relation errors. Each is a small
+class configured once whose ``compute`` returns a result with per-sample errors, a few
+statistics and ``as_dict()`` (:mod:`fusion.evaluation` says how trajectories are paired).
 """
 
 from __future__ import annotations
