@@ -96,7 +96,12 @@ class LocalizerStats:
 
 
 class Localizer:
-    """Wheel odometry fused with Hough-transform pose fixes in an EKF, one event at a time."""
+    """Wheel odometry fused with Hough-transform pose fixes in an EKF, one event at a time.
+
+    Longer than most classes here (about 270 lines) because it is the one place where bad
+    input meets the filter: every entry point (odometry, scans, points, landmarks) states and
+    applies its rule for stray stamps, non-finite values and unknown sensors before the steps
+    of :meth:`on_points`, which read as the algorithm."""
 
     def __init__(self, map: SegmentMap, config: LocalizerConfig | None = None,
                  initial_pose: ArrayLike | None = None, logger: Logger | None = None) -> None:
