@@ -20,11 +20,12 @@ from typing import Literal
 import numpy as np
 import yaml
 from numpy.typing import ArrayLike, NDArray
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import ValidationError
 from scipy.spatial import cKDTree
 
 from houghloc.geometry import TWO_PI, Pose, ray_segment_distances
 from houghloc.jit import njit
+from houghloc.map_file import MapFile, describe_error
 from houghloc.yaml_io import read_yaml
 
 SegmentKind = Literal["wall", "line"]
@@ -55,37 +56,6 @@ def check_grid_size(shape: tuple[int, int], cell: float, what: str) -> None:
 
 class MapError(ValueError):
     """A map file or map definition that cannot be used; the message names the file and entry."""
-
-
-class _SegmentEntry(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
-    id: str | None = None
-    kind: SegmentKind = "wall"
-    start: tuple[float, float] = Field(alias="from")
-    end: tuple[float, float] = Field(alias="to")
-
-    @field_validator("start", "end")
-    @classmethod
-    def _finite(cls, v: tuple[float, float]) -> tuple[float, float]:
-        if not all(math.isfinite(c) for c in v):
-            raise ValueError("coordinates must be finite numbers")
-        return v
-
-
-class _LandmarkEntry(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
-    id: str
-    at: tuple[float, float]
-
-
-class _MapFile(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
-    name: str = "unnamed"
-    frame: str = "map"
-    units: Literal["m"] = "m"
-    segments: list[_SegmentEntry] = Field(min_length=1)
-    # distinguishable point features (e.g. the RoboCup goals' colours); optional
-    landmarks: list[_LandmarkEntry] = Field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -179,9 +149,9 @@ class SegmentMap:
     @classmethod
     def from_dict(cls, raw: dict, source: str = "<dict>") -> SegmentMap:
         try:
-            spec = _MapFile.model_validate(raw)
+            spec = MapFile.model_validate(raw)
         except ValidationError as exc:
-            raise MapError(f"map {source}: {_describe(exc, raw)}") from None
+            raise MapError(f"map {source}: {describe_error(exc, raw)}") from None
         ids = [s.id if s.id is not None else f"s{i}" for i, s in enumerate(spec.segments)]
         seen: dict[str, int] = {}
         for i, sid in enumerate(ids):
@@ -426,22 +396,3 @@ def _empty_references() -> References:
     return References(i, e, e, e, i, e, e)
 
 
-def _describe(exc: ValidationError, raw: dict) -> str:
-    """Turn the first pydantic error into 'segment #i (id 'x'): field: problem'."""
-    err = exc.errors()[0]
-    loc = list(err["loc"])
-    where = ""
-    if len(loc) >= 2 and loc[0] == "segments" and isinstance(loc[1], int):
-        i = loc[1]
-        seg = raw.get("segments", [None] * (i + 1))[i]
-        sid = seg.get("id") if isinstance(seg, dict) else None
-        where = f"segment #{i}" + (f" (id {sid!r})" if sid is not None else "") + ": "
-        loc = loc[2:]
-    field = ".".join(str(p) for p in loc if not isinstance(p, int)) or "entry"
-    field = {"start": "from", "end": "to"}.get(field, field)
-    msg = err["msg"]
-    if err["type"] == "missing":
-        msg = "is missing"
-    elif err["type"] == "too_short" and field == "segments":
-        msg = "the map has no segments"
-    return f"{where}{field!r} {msg}" if msg == "is missing" else f"{where}{field}: {msg}"

@@ -1,0 +1,187 @@
+"""Point-to-line ICP between two consecutive laser scans, compiled: each scan's normals from its
+neighbouring beams, correspondences by a grid of cells, Gauss-Newton on the point-to-line
+distances. Scan odometry (:mod:`fusion.scan_odometry`) uses it to correct the wheels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from houghloc.geometry import wrap_scalar
+from houghloc.jit import fma, njit
+
+if TYPE_CHECKING:
+    from fusion.scan_odometry import ScanOdometryConfig
+
+
+_DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e3 per axis
+
+
+@dataclass(frozen=True, slots=True)
+class IcpResult:
+    """The increment that maps the current scan onto the previous one, and its covariance."""
+
+    delta: NDArray[np.float64]
+    cov: NDArray[np.float64]
+    overlap: float  # fraction of the current scan's points paired at the last iteration
+
+
+def scan_normals(points: NDArray[np.float64], max_gap: float, radius: float,
+                 half_window: int = 8) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Unit normals of a scan in beam order, and which are usable.
+
+    Each normal is the minor axis of the covariance of the point's neighbours within
+    ``radius`` (among the ``half_window`` beams either side, not across a jump of more than
+    ``max_gap``, where the scan passes from one object to another). A normal from the two
+    adjacent points alone turns by tens of degrees with a centimetre of range noise when the
+    beams are a centimetre or two apart: along a corridor's walls those tilts add up to
+    information along the corridor that the walls do not give. Usable: at least three
+    points in the neighbourhood."""
+    return _scan_normals(np.ascontiguousarray(points, dtype=float), max_gap, radius,
+                         half_window)
+
+
+@njit
+def _scan_normals(points: NDArray, max_gap: float, radius: float, half_window: int
+                  ) -> tuple[NDArray, NDArray]:
+    n = len(points)
+    jump = np.zeros(n, np.intp)  # the object each point belongs to
+    for i in range(1, n):
+        gap = math.hypot(points[i, 0] - points[i - 1, 0], points[i, 1] - points[i - 1, 1])
+        jump[i] = jump[i - 1] + (gap > max_gap)
+    normals = np.empty((n, 2))
+    usable = np.empty(n, np.bool_)
+    for i in range(n):
+        count = sx = sy = sxx = sxy = syy = 0.0
+        for j in range(max(0, i - half_window), min(n, i + half_window + 1)):
+            dx, dy = points[j, 0] - points[i, 0], points[j, 1] - points[i, 1]
+            if math.hypot(dx, dy) <= radius and jump[j] == jump[i]:
+                count += 1.0
+                sx, sy = sx + dx, sy + dy
+                sxx, sxy, syy = sxx + dx * dx, sxy + dx * dy, syy + dy * dy
+        safe = max(count, 1.0)
+        cxx = sxx / safe - (sx / safe) ** 2
+        cxy = sxy / safe - (sx / safe) * (sy / safe)
+        cyy = syy / safe - (sy / safe) ** 2
+        along = 0.5 * math.atan2(2.0 * cxy, cxx - cyy)  # the major axis: the surface's direction
+        normals[i, 0], normals[i, 1] = -math.sin(along), math.cos(along)
+        usable[i] = count >= 3
+    return normals, usable
+
+
+def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64],
+                      guess: NDArray[np.float64], config: ScanOdometryConfig) -> IcpResult | None:
+    """Align ``current`` (robot frame at k) onto ``previous`` (robot frame at k − 1), started at
+    the increment ``guess``: Gauss–Newton on Σ w ρ(nᵢ·(R qᵢ + t − pᵢ)) with Huber weights, pairs
+    by nearest neighbour within a distance that shrinks over the iterations. None when too few
+    points pair. Cov = σ̂² (JᵀWJ)⁻¹, the Gauss–Newton covariance at the optimum."""
+    if len(previous) < config.min_points or len(current) < config.min_points:
+        return None
+    previous = np.ascontiguousarray(previous, dtype=float)
+    normals, usable = scan_normals(previous, config.max_neighbour_gap, config.normal_radius)
+    found, x, hessian, sigma2, overlap = _icp(
+        previous, normals, usable, np.ascontiguousarray(current, dtype=float),
+        np.array(guess, dtype=float), config.iterations, config.max_pair_distance,
+        config.final_pair_distance, config.huber, config.min_points)
+    if not found:
+        return None
+    x[2] = wrap_scalar(x[2])
+    return IcpResult(x, sigma2 * np.linalg.inv(hessian), overlap)
+
+
+@njit
+def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
+         x: NDArray, iterations: int, max_pair: float, final_pair: float, huber: float,
+         min_points: int) -> tuple[bool, NDArray, NDArray, float, float]:
+    """The Gauss–Newton iterations of :func:`point_to_line_icp`: (found, x, JᵀWJ + damping,
+    σ̂², overlap). Nearest neighbours come from a grid of the previous scan with cells as wide
+    as the widest pairing distance, so a pair is always in one of the 3 × 3 cells around."""
+    index = _cell_index(previous, max(max_pair, final_pair))
+    n = len(current)
+    residual, weight = np.zeros(n), np.zeros(n)
+    hessian = np.eye(3)
+    shrink = max(1.0, 0.6 * iterations)
+    paired = 0
+    for iteration in range(iterations):
+        progress = min(1.0, iteration / shrink)
+        reach = max_pair + (final_pair - max_pair) * progress
+        c, s = math.cos(x[2]), math.sin(x[2])
+        hessian = np.zeros((3, 3))
+        gradient = np.zeros(3)
+        paired = 0
+        for i in range(n):  # q = R(θ) cᵢ + t, as the matrix product [cᵢ]·[[c, s], [−s, c]]
+            qx = fma(current[i, 1], -s, current[i, 0] * c) + x[0]
+            qy = fma(current[i, 1], c, current[i, 0] * s) + x[1]
+            j = _nearest(previous, index, qx, qy, reach)
+            if j < 0 or not usable[j]:
+                residual[i] = weight[i] = 0.0
+                continue
+            paired += 1
+            nx, ny = normals[j, 0], normals[j, 1]
+            r = nx * (qx - previous[j, 0]) + ny * (qy - previous[j, 1])
+            ax, ay = qx - x[0], qy - x[1]  # ∂(R q)/∂θ = (−(Rq)_y, (Rq)_x)
+            jac = (nx, ny, ny * ax - nx * ay)
+            w = 1.0 / max(1.0, abs(r) / huber)
+            residual[i], weight[i] = r, w
+            for a in range(3):
+                gradient[a] += jac[a] * w * r
+                for b in range(3):
+                    hessian[a, b] += jac[a] * jac[b] * w
+        if paired < min_points:
+            return False, x, hessian, 0.0, 0.0
+        hessian += _DAMPING * np.eye(3)
+        # damped: along a featureless corridor one direction has no information; the step
+        # leaves it alone and the covariance calls it unknown (σ² ~ σ̂²/damping)
+        step = -np.linalg.solve(hessian, gradient)
+        x += step
+        if np.abs(step).max() < 1e-5:
+            break
+    dof = max(1, paired - 3)
+    sigma2 = max((weight * residual**2).sum() / dof, 1e-6)
+    return True, x, hessian, sigma2, paired / n
+
+
+@njit
+def _cell_index(points: NDArray, cell: float) -> tuple:
+    """Points bucketed in square cells of side ``cell`` (a counting sort): the grid's origin,
+    1/cell, its width and height in cells, and ``start``, ``order`` such that
+    ``order[start[c]:start[c + 1]]`` are the points of cell c (row-major)."""
+    ox, oy = points[:, 0].min(), points[:, 1].min()
+    inv_cell = 1.0 / cell
+    nx = int((points[:, 0].max() - ox) * inv_cell) + 1
+    ny = int((points[:, 1].max() - oy) * inv_cell) + 1
+    of = np.empty(len(points), np.intp)
+    counts = np.zeros(nx * ny + 1, np.intp)
+    for k in range(len(points)):
+        of[k] = int((points[k, 1] - oy) * inv_cell) * nx + int((points[k, 0] - ox) * inv_cell)
+        counts[of[k] + 1] += 1
+    start = np.cumsum(counts)
+    fill = start[:-1].copy()
+    order = np.empty(len(points), np.intp)
+    for k in range(len(points)):
+        order[fill[of[k]]] = k
+        fill[of[k]] += 1
+    return ox, oy, inv_cell, nx, ny, start, order
+
+
+@njit
+def _nearest(points: NDArray, index: tuple, x: float, y: float, reach: float) -> int:
+    """The point of :func:`_cell_index` nearest (x, y) and closer than ``reach`` (at most the
+    cell's side: it lies in one of the 3 × 3 cells around), or −1."""
+    ox, oy, inv_cell, nx, ny, start, order = index
+    cx, cy = math.floor((x - ox) * inv_cell), math.floor((y - oy) * inv_cell)
+    best, best_d2 = -1, reach * reach
+    for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+        for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+            c = gy * nx + gx
+            for m in range(start[c], start[c + 1]):
+                k = order[m]
+                d2 = (points[k, 0] - x) ** 2 + (points[k, 1] - y) ** 2
+                if d2 < best_d2 or (d2 == best_d2 and 0 <= k < best):
+                    best, best_d2 = k, d2
+    return best
