@@ -283,7 +283,7 @@ class Localizer:
         t2 = perf_counter()
         self.stats.seconds["update"] += t2 - t1
         decision = self.manager.re_search(t, status, verdict, guess, points, fix, kinds, cfg.hough,
-                                          self.tracker.odometry_at(t))
+                                          lambda: self.tracker.odometry_at(t))
         if decision is not None:
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)

@@ -1,5 +1,5 @@
 """The recording in the Rerun web viewer, in a real browser (headless Chromium with software
-WebGL): the view a user gets is drawn, with the walls in their colour and the paths."""
+WebGL): the view a user gets is drawn, the walls in their grey and the matched ones highlighted."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from benchmarks.rerun_web import VIEWPORT, chromium, screenshot
 from fusion import Localizer, LocalizerConfig
 from fusion.replay import replay
 from fusion.rerun_logger import RerunLogger
-from fusion.rerun_view import ESTIMATE_COLOUR, WALL_COLOUR
+from fusion.rerun_view import WALL_COLOUR
 from fusion.resources import find_config
 from fusion.sim import scenario_preset, simulate
 
@@ -32,7 +32,7 @@ def pixels_near(image: np.ndarray, colour: tuple[int, ...], tolerance: int = 14)
     return int((np.abs(rgb - np.array(colour[:3])).max(axis=-1) <= tolerance).sum())
 
 
-def test_the_web_viewer_draws_the_walls_and_the_path(tmp_path: Path) -> None:
+def test_the_web_viewer_draws_the_walls_and_the_matched_ones(tmp_path: Path) -> None:
     run = simulate(scenario_preset("office-laser", seed=1, duration=20.0))
     logger = RerunLogger(tmp_path / "run.rrd")
     localizer = Localizer(run.map, LocalizerConfig.from_yaml(find_config("office-laser")),
@@ -46,4 +46,3 @@ def test_the_web_viewer_draws_the_walls_and_the_path(tmp_path: Path) -> None:
     rgb = world * 255.0
     saturated = (rgb.max(axis=-1) - rgb.min(axis=-1)) > 120  # the matched walls' palette
     assert saturated.sum() > 1000, "no matched wall highlighted"
-    assert pixels_near(image, ESTIMATE_COLOUR, 40) > 0, "no estimate drawn"

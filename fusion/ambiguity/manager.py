@@ -152,10 +152,13 @@ class AmbiguityManager:
 
     def re_search(self, t: float, status: ScanStatus, verdict: Verdict, guess: NDArray,
                   points: NDArray, fix: ScanCorrection, kinds: tuple[str, ...],
-                  hough: HoughConfig, odom: NDArray | None) -> Decision | None:
+                  hough: HoughConfig, odometry: Callable[[], NDArray | None]
+                  ) -> Decision | None:
         """After a tracking scan's update (``status``): when the scan fits worse than usual (at
         the guess if no fix was accepted, at the fix if one was), the local search near the
-        guess (:meth:`local_search`); None when none was wanted."""
+        guess (:meth:`local_search`), bounded by the motion since the last accepted fix
+        (``odometry()``: the odometry at the scan, asked only then); None when none was
+        wanted."""
         guess_fit = verdict.guess_fit
         fix_fit = verdict.fix_fit if status == ScanStatus.ACCEPTED else None
         if guess_fit is None or not self.wants_local_search(guess_fit, fix_fit):
@@ -163,7 +166,7 @@ class AmbiguityManager:
         # tracking failed and the prediction no longer fits: the odometry slipped, or
         # reported a motion the robot did not make. Look for the pose near it first.
         return self.local_search(t, guess, points, fix, kinds, max(guess_fit, fix_fit or 0.0),
-                                 hough, odom)
+                                 hough, odometry())
 
     def wants_local_search(self, guess_fit: float | None, fix_fit: float | None = None) -> bool:
         """Is a local re-search on, and does the scan fit worse than usual
@@ -259,7 +262,6 @@ class AmbiguityManager:
                 return decision
         if not self.views.add(odom, points) or not self.views.due(self._bank is not None):
             return Decision()
-        previous = self.state
         self._go(t, State.RELOCALIZING, f"{len(self.views)} views accumulated")
         pts = self.views.points()
         _, _, lines = observe_lines(pts, self.config.global_match.hough)
@@ -267,7 +269,7 @@ class AmbiguityManager:
         self.counts["global_matches"] += 1
         if self.config.hypotheses is not None and self.make_tracker is not None:
             return self._seed_bank(t, result)
-        decision = self._decide(t, result, previous)
+        decision = self._decide(t, result)
         decision.result = result
         return decision
 
@@ -360,7 +362,7 @@ class AmbiguityManager:
         return Decision(verdict.pose, verdict.cov)
 
     # ------------------------------------------------------------------ rules-based (ties)
-    def _decide(self, t: float, result: GlobalResult, previous: State) -> Decision:
+    def _decide(self, t: float, result: GlobalResult) -> Decision:
         """Without followed hypotheses: the best pose when it scores ``min_score`` and no rival
         comes within ``decisive_margin``; rivals are a tie (:class:`Ties`) unless the tracker's
         last belief singles one out."""
