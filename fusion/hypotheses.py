@@ -46,6 +46,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from fusion.tracker import PoseTracker
 from houghloc import HoughConfig, localize_scan
 from houghloc.geometry import relative, wrap_scalar
+from houghloc.localize import clean_points, observe_lines
 from houghloc.matching import gate_threshold
 from houghloc.segment_map import SegmentMap
 
@@ -177,10 +178,14 @@ class HypothesisBank:
         weight and its fits allow (``least_fit``: the least a right pose fits, if known)."""
         if not self.hypotheses or len(points) == 0:
             return BankVerdict()
+        points, _ = clean_points(points)
+        # the scan's lines do not depend on the pose they are matched from: extracted once
+        observed = observe_lines(points, hough) if len(points) >= hough.peak_min_votes else None
         for h in self.hypotheses:
             h.tracker.on_odometry(t, *odom)
             guess, guess_cov = h.tracker.pose, h.tracker.cov
-            fix = localize_scan(points, self.map, guess, hough, pose_cov=guess_cov)
+            fix = localize_scan(points, self.map, guess, hough, pose_cov=guess_cov,
+                                observed=observed)
             if fix.rank > 0 and not fix.ambiguous:
                 h.tracker.apply(t, fix.pose, fix.cov, fix.observable)
         if not self._moved(odom):

@@ -31,7 +31,7 @@ from fusion.tracker import PoseTracker
 from fusion.visualize import Logger, NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points
-from houghloc.jit import warm_up
+from houghloc.jit import one_blas_thread, warm_up
 from houghloc.localize import clean_points
 
 log = logging.getLogger(__name__)
@@ -128,6 +128,10 @@ class Localizer:
             warm_up_scan_matching()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
                                         make_tracker=self._tracker_at)
+        # the map's look-ups for global matching, now rather than on the scan that first needs
+        # them (the angle index and distance transform of a building take tens of ms)
+        for kinds in {s.hough.reference_kinds for s in self.config.sensors.values()}:
+            self.manager.prepare(kinds)
         self.logger.log_map(map)
         self._held_odometry: tuple[float, float, float, float, float] | None = None
         self._start_reason = "initial pose given"
@@ -232,6 +236,7 @@ class Localizer:
         points = ranges_to_points(ranges, angles, min(cfg.max_range, max_range), cfg.min_range)
         return self.on_points(t, points, sensor)
 
+    @one_blas_thread
     def on_points(self, t: float, points: ArrayLike, sensor: str = "camera") -> Estimate:
         """Points in the sensor frame taken at time ``t`` (possibly in the past): fuse them.
 

@@ -10,8 +10,10 @@ per-scan steps compiled with Numba, see houghloc.jit).
 from importlib.metadata import PackageNotFoundError, version
 
 from houghloc.config import HoughConfig
-from houghloc.global_match import GlobalMatchConfig, GlobalResult, Hypothesis, global_match
+from houghloc.global_match import GlobalMatchConfig, global_match
+from houghloc.hypothesis_scores import Hypothesis
 from houghloc.localize import ScanCorrection, localize_scan, observe_lines
+from houghloc.match_result import GlobalResult
 from houghloc.segment_map import MapError, References, SegmentMap
 
 __all__ = [

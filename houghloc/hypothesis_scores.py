@@ -46,24 +46,30 @@ class Hypothesis:
 
 def cheap_scores(poses: NDArray, lines: Lines, walls: WallDistance,
                  config: GlobalMatchConfig) -> NDArray[np.float64]:
-    """Point-count-weighted fraction of the ``cheap_lines`` strongest observed lines whose samples
-    lie on walls (H,).
-
-    Line k is sampled at S evenly spaced points ρ n_k + s t_k, s ∈ [s0, s1]; it counts when
-    ≥ ``min_line_coverage`` of its samples are within ``inlier_distance`` of a wall.
-    """
+    """Point-count-weighted fraction of the ``cheap_lines`` strongest observed lines that lie on
+    walls (:func:`lines_on_walls`) at each pose (H,)."""
     lines = lines.subset(np.argsort(-lines.n, kind="stable")[: config.cheap_lines])
+    weight = lines.n / lines.n.sum()
+    return lines_on_walls(poses, lines, walls, config) @ weight
+
+
+def lines_on_walls(poses: NDArray, lines: Lines, walls: WallDistance,
+                   config: GlobalMatchConfig) -> NDArray[np.bool_]:
+    """Which observed lines lie on walls at each pose (H×K).
+
+    Line k is sampled at S = ``line_samples`` evenly spaced points ρ n_k + s t_k, s ∈ [s0, s1];
+    it lies on walls when ≥ ``min_line_coverage`` of its samples are within
+    ``inlier_distance`` of one.
+    """
     u = np.linspace(0.0, 1.0, config.line_samples)
     s = lines.s0[:, None] + u[None, :] * (lines.s1 - lines.s0)[:, None]  # K×S
     c, sn = np.cos(lines.theta)[:, None], np.sin(lines.theta)[:, None]
     px = (lines.rho[:, None] * c - s * sn).astype(np.float32)
     py = (lines.rho[:, None] * sn + s * c).astype(np.float32)
-    weight = lines.n / lines.n.sum()
-    out = np.empty(len(poses))
+    out = np.empty((len(poses), len(lines)), bool)
     for sl in row_chunks(len(poses), px.size):
         on_wall = walls.at(poses[sl], px, py) <= config.inlier_distance  # H×K×S
-        explained = on_wall.mean(axis=2) >= config.min_line_coverage
-        out[sl] = explained @ weight
+        out[sl] = on_wall.mean(axis=2) >= config.min_line_coverage
     return out
 
 

@@ -75,6 +75,17 @@ class WallDistance:
                             _flat(x), _flat(y), smooth)
         return out.reshape((len(poses),) + shape)
 
+    def closeness(self, poses: NDArray, x: NDArray, y: NDArray, reach: float,
+                  smooth: bool = False) -> NDArray[np.float64]:
+        """How close robot-frame points (``x``, ``y``) placed at each of ``poses`` (P×3) lie
+        to walls: the mean over the points of max(0, 1 − (d / ``reach``)²), d their distance
+        (P,). Not ``smooth``: d is the cell's value less a cell (its quantisation is not
+        evidence); ``smooth``: interpolated as :meth:`lookup_smooth`. One pass, no P×N array."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        return _closeness_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,
+                             poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]), _flat(x),
+                             _flat(y), smooth, 0.0 if smooth else self.cell, 1.0 / reach)
+
 
 _IDENTITY = np.zeros((1, 3))
 
@@ -85,28 +96,50 @@ def _flat(values: NDArray) -> NDArray[np.float64]:
 
 
 @njit
+def _distance(grid: NDArray, fx: float, fy: float, smooth: bool) -> float:
+    """The distance at grid coordinates (``fx``, ``fy``) (cells from the origin): the cell's
+    value, or bilinear between cell centres when ``smooth``."""
+    h, w = grid.shape
+    if not smooth:  # truncation is floor inside the grid; outside, the +inf ring
+        return grid[min(max(int(fy), 0), h - 1), min(max(int(fx), 0), w - 1)]
+    fx, fy = fx - 0.5, fy - 0.5  # from cell centres
+    x0 = min(max(math.floor(fx), 0), w - 2)
+    y0 = min(max(math.floor(fy), 0), h - 2)
+    ax, ay = min(max(fx - x0, 0.0), 1.0), min(max(fy - y0, 0.0), 1.0)
+    top = grid[y0, x0] * (1 - ax) + grid[y0, x0 + 1] * ax
+    bottom = grid[y0 + 1, x0] * (1 - ax) + grid[y0 + 1, x0 + 1] * ax
+    d = top * (1 - ay) + bottom * ay
+    return np.inf if math.isnan(d) else d  # inf · 0 at the rim: far from walls
+
+
+@njit
 def _distances_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: NDArray,
                   cos_t: NDArray, sin_t: NDArray, x: NDArray, y: NDArray, smooth: bool
                   ) -> NDArray[np.float32]:
-    h, w = grid.shape
     out = np.empty((len(poses), len(x)), np.float32)
     for p in range(len(poses)):
         c, s, px, py = cos_t[p], sin_t[p], poses[p, 0], poses[p, 1]
         for k in range(len(x)):
-            fx = (px + c * x[k] - s * y[k] - ox) * inv_cell
-            fy = (py + s * x[k] + c * y[k] - oy) * inv_cell
-            if not smooth:  # truncation is floor inside the grid; outside, the +inf ring
-                ix, iy = min(max(int(fx), 0), w - 1), min(max(int(fy), 0), h - 1)
-                out[p, k] = grid[iy, ix]
-                continue
-            fx, fy = fx - 0.5, fy - 0.5  # from cell centres
-            x0 = min(max(math.floor(fx), 0), w - 2)
-            y0 = min(max(math.floor(fy), 0), h - 2)
-            ax, ay = min(max(fx - x0, 0.0), 1.0), min(max(fy - y0, 0.0), 1.0)
-            top = grid[y0, x0] * (1 - ax) + grid[y0, x0 + 1] * ax
-            bottom = grid[y0 + 1, x0] * (1 - ax) + grid[y0 + 1, x0 + 1] * ax
-            d = top * (1 - ay) + bottom * ay
-            out[p, k] = np.inf if math.isnan(d) else d  # inf · 0 at the rim: far from walls
+            out[p, k] = _distance(grid, (px + c * x[k] - s * y[k] - ox) * inv_cell,
+                                  (py + s * x[k] + c * y[k] - oy) * inv_cell, smooth)
+    return out
+
+
+@njit
+def _closeness_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: NDArray,
+                  cos_t: NDArray, sin_t: NDArray, x: NDArray, y: NDArray, smooth: bool,
+                  less: float, inv_reach: float) -> NDArray[np.float64]:
+    out = np.empty(len(poses))
+    for p in range(len(poses)):
+        c, s, px, py = cos_t[p], sin_t[p], poses[p, 0], poses[p, 1]
+        total = 0.0
+        for k in range(len(x)):
+            d = _distance(grid, (px + c * x[k] - s * y[k] - ox) * inv_cell,
+                          (py + s * x[k] + c * y[k] - oy) * inv_cell, smooth)
+            e = max(d - less, 0.0) * inv_reach
+            if e < 1.0:
+                total += 1.0 - e * e
+        out[p] = total / max(len(x), 1)
     return out
 
 

@@ -18,7 +18,7 @@ from houghloc.refine import Lines
 
 if TYPE_CHECKING:
     from houghloc.config import GlobalMatchConfig
-    from houghloc.global_match import Neighbourhood
+    from houghloc.match_result import Neighbourhood
 
 
 # ---------------------------------------------------------------------------- 1. hypotheses

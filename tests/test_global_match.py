@@ -9,9 +9,10 @@ from pydantic import ValidationError
 
 from houghloc import SegmentMap, observe_lines
 from houghloc.geometry import relative, transform_points, wrap_angle
-from houghloc.global_match import GlobalMatchConfig, GlobalResult, Neighbourhood, global_match
+from houghloc.global_match import GlobalMatchConfig, global_match
 from houghloc.hypothesis_scores import seen_directly
 from houghloc.map_lookup import angle_index, wall_distance
+from houghloc.match_result import GlobalResult, Neighbourhood
 from houghloc.pose_hypotheses import observed_pairs, pair_hypotheses
 from houghloc.refine import Lines
 from tests.conftest import MAPS
@@ -267,3 +268,103 @@ def test_config_is_validated() -> None:
         GlobalMatchConfig(min_pair_angle_deg=0.0)
     with pytest.raises(ValidationError):
         GlobalMatchConfig(unknown=1)
+
+
+# ---------------------------------------------------------------------------- in stages
+def corridor_view(office: SegmentMap, true: np.ndarray) -> np.ndarray:
+    """Robot-frame points of the corridor's two walls only (heading 0), door gaps included:
+    a view that only the slide places."""
+    along = np.arange(-4.0, 4.0, 0.03)
+    world = np.concatenate([np.column_stack((true[0] + along, np.full_like(along, y)))
+                            for y in (5.0, 7.0)])
+    a, e = office.starts, office.ends - office.starts
+    u = np.clip(((world[:, None] - a) * e).sum(-1) / (e * e).sum(-1), 0.0, 1.0)
+    gap = np.hypot(*(a + u[..., None] * e - world[:, None]).transpose(2, 0, 1)).min(axis=1)
+    return world[gap < 1e-6] - true[:2]
+
+
+@pytest.mark.parametrize("view", ["rooms", "corridor"])
+@pytest.mark.parametrize("budget", [1, 300_000])
+def test_a_match_in_stages_finds_what_a_whole_one_does(office: SegmentMap, view: str,
+                                                       budget: int) -> None:
+    """The budget decides when the result comes, never what it is: the same hypotheses as
+    the whole match, bit for bit, over more calls the smaller it is; every call but the last
+    reports at least the budget's work, and the calls' reported work adds up to the same."""
+    from houghloc.global_match import advance, global_match_stages
+
+    rng = np.random.default_rng(5)
+    if view == "corridor":  # pairs, then the slide's stages
+        points = corridor_view(office, np.array([5.5, 6.2, 0.0]))
+    else:
+        points = accumulated_views(office, free_pose(office, rng), rng)
+    _, _, lines = observe_lines(points, HOUGH)
+    whole = global_match(lines, points, office)
+    assert whole.hypotheses, whole.reason
+    every: list[int] = []  # the cost of each stage, from a run of them all
+    tapped = _tap(global_match_stages(lines, points, office), every)
+    assert [h.pose.tolist() for h in tapped.hypotheses] == [h.pose.tolist()
+                                                            for h in whole.hypotheses]
+    stages = global_match_stages(lines, points, office)
+    calls, work = 0, 0
+    while True:
+        calls += 1
+        counter: list[int] = []
+        result = advance(_counted(stages, counter), budget)
+        work += sum(counter)
+        if result is not None:
+            break
+        assert sum(counter) >= budget
+    assert [h.pose.tolist() for h in result.hypotheses] == [h.pose.tolist()
+                                                            for h in whole.hypotheses]
+    assert [h.score for h in result.hypotheses] == [h.score for h in whole.hypotheses]
+    assert result.reason == whole.reason and result.ambiguous == whole.ambiguous
+    assert work == sum(every) and min(every) > 0
+    if budget == 1:  # a stage per call, and one that ends the match
+        assert calls == len(every) + 1 >= 4
+    if view == "corridor":
+        assert any(h.slid for h in result.hypotheses)
+
+
+def _counted(stages, counter: list):
+    """The stages, each yielded cost also appended to ``counter``; the result passed on."""
+    while True:
+        try:
+            cost = next(stages)
+        except StopIteration as done:
+            return done.value
+        counter.append(cost)
+        yield cost
+
+
+def _tap(stages, counter: list) -> GlobalResult:
+    """Run every stage, appending each one's cost to ``counter``; the result."""
+    wrapped = _counted(stages, counter)
+    while True:
+        try:
+            next(wrapped)
+        except StopIteration as done:
+            return done.value
+
+
+def test_segment_spans_cover_what_the_segments_cover(office: SegmentMap) -> None:
+    """The fraction of an interval along an oriented map line that its segments cover, against
+    a fine sampling of the interval (both orientations of every line)."""
+    from houghloc.map_lookup import map_lines_of_kinds
+    from houghloc.slide import SegmentSpans
+
+    mlines = map_lines_of_kinds(office, ("wall",))
+    spans = SegmentSpans(office, mlines, ("wall",), 0.0)
+    rng = np.random.default_rng(0)
+    rows = rng.integers(0, 2 * len(mlines), 300)
+    s0 = rng.uniform(-25.0, 25.0, 300)
+    s1 = s0 + rng.uniform(0.5, 8.0, 300)
+    got = spans.coverage(rows, s0, s1)
+    for row, a, b, g in zip(rows, s0, s1, got, strict=True):
+        line = mlines[row % len(mlines)]
+        segs = np.flatnonzero((office.line_of_segment == line) & office.is_wall)
+        lo, hi = office.seg_s0[segs], office.seg_s1[segs]
+        if row >= len(mlines):  # turned by π: along-coordinates reversed
+            lo, hi = -hi, -lo
+        s = np.linspace(a, b, 4001)
+        inside = ((s[:, None] >= lo) & (s[:, None] <= hi)).any(axis=1).mean()
+        assert g == pytest.approx(inside, abs=2e-3)

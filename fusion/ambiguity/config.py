@@ -29,6 +29,10 @@ class AmbiguityConfig(BaseModel):
         "robot standing still adds no evidence")
     view_spacing_deg: float = Field(2.0, ge=0.0, description="° turned between views")
     max_points: int = Field(4000, ge=100, description="accumulated points kept (subsampled)")
+    match_lookups_per_scan: int = Field(
+        500_000, ge=1, description="work of a global match done per scan, in distance look-ups "
+        "(5–10 ms): a match spreads over as many scans as it needs, so that no scan waits for "
+        "a whole one (while its poses are followed; otherwise it runs whole)")
     min_score: float = Field(0.85, ge=0.0, le=1.0, description="global hypothesis acceptance")
     decisive_margin: float = Field(
         0.05, ge=0.0, description="the winner must beat any other pose by this much; closer "

@@ -24,7 +24,7 @@ from houghloc import (
 )
 from houghloc.displacement import UNOBSERVED_VARIANCE
 from houghloc.geometry import wrap_angle, wrap_scalar
-from houghloc.global_match import Neighbourhood
+from houghloc.match_result import Neighbourhood
 
 
 @dataclass(frozen=True, slots=True)

@@ -6,7 +6,8 @@ States and triggers (:class:`fusion.status.State`)::
     tracking ──(scans without a usable fix: ambiguous, rejected, misfits (fixes that put the
     │           scan off the walls) or none, while the prediction no longer fits the scan
     │           either; covariance too large for the line spacing in view)──▶ collecting
-    collecting ──(enough views, spaced by motion)──▶ relocalizing (a global match)
+    collecting ──(enough views, spaced by motion)──▶ relocalizing (a global match, spread
+    │            over scans: ``match_lookups_per_scan`` of it each)
     relocalizing ──▶ collecting, its poses followed, each by its own filter
                      (:mod:`fusion.hypotheses`), tracking's last belief among them
                  ──(nothing fits, repeatedly)──▶ lost (still collecting)
@@ -51,10 +52,11 @@ from houghloc import (
     Hypothesis,
     ScanCorrection,
     SegmentMap,
-    global_match,
     observe_lines,
 )
 from houghloc.geometry import compose, relative, wrap_scalar
+from houghloc.global_match import advance, finish, global_match_stages, prepare_map
+from houghloc.match_result import Stages
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,6 +65,15 @@ class Transition:
     old: State
     new: State
     reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class PendingMatch:
+    """A global match under way (:data:`Stages`) and the odometry of the views it
+    matches."""
+
+    stages: Stages
+    odom: NDArray[np.float64]
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,6 +121,7 @@ class AmbiguityManager:
     _last_trusted: tuple[NDArray, NDArray] | None = None  # pose, odometry at the last used fix
     _trusted_by_prior_only: bool = False  # tracking since a tie broken by _last_trusted alone
     _bank: HypothesisBank | None = None
+    _match: PendingMatch | None = None
 
     def __post_init__(self) -> None:
         self._line_spacing = closest_parallel_spacing(self.map)
@@ -117,6 +129,11 @@ class AmbiguityManager:
         self._local = LocalSearch(self.map, self.config, self.fit, self.counts)
         self.ties = Ties(self.config)
         self.views = Views(self.config)
+
+    def prepare(self, kinds: tuple[str, ...]) -> None:
+        """Build the map's look-ups that global matching and the scan fit use for ``kinds``
+        (cached on the map)."""
+        prepare_map(self.map, self.config.global_match, kinds)
 
     def start_lost(self, t: float, reason: str) -> None:
         self._go(t, State.LOST, reason)
@@ -260,21 +277,47 @@ class AmbiguityManager:
             decision = self._follow_ties(t, odom, points, kinds, hough)
             if decision.reset_pose is not None:
                 return decision
-        if not self.views.add(odom, points) or not self.views.due(self._bank is not None):
-            return Decision()
-        self._go(t, State.RELOCALIZING, f"{len(self.views)} views accumulated")
+        added = self.views.add(odom, points)
+        if self._match is None:
+            if not added or not self.views.due(self._bank is not None):
+                return Decision()
+            self._go(t, State.RELOCALIZING, f"{len(self.views)} views accumulated")
+            self._match = PendingMatch(self._match_stages(kinds), self.views.latest_odom)
+        return self._match_step(t, odom)
+
+    def _match_stages(self, kinds: tuple[str, ...]) -> Stages:
+        """The global match of the views collected so far, in stages: their lines, then
+        :func:`houghloc.global_match.global_match_stages`."""
         pts = self.views.points()
-        _, _, lines = observe_lines(pts, self.config.global_match.hough)
-        result = global_match(lines, pts, self.map, self.config.global_match, kinds=kinds)
+        grid, _, lines = observe_lines(pts, self.config.global_match.hough)
+        yield len(pts) * grid.n_theta
+        return (yield from global_match_stages(lines, pts, self.map, self.config.global_match,
+                                               kinds=kinds))
+
+    def _match_step(self, t: float, odom: NDArray) -> Decision:
+        """The global match under way: its next stages, ``match_lookups_per_scan`` of work,
+        when its poses are followed (no scan waits for a whole match); whole otherwise. When it
+        ends, its poses, found in the frame of the views it matched, are carried to this scan
+        by the odometry since."""
+        assert self._match is not None
+        following = self.config.hypotheses is not None and self.make_tracker is not None
+        result = (advance(self._match.stages, self.config.match_lookups_per_scan) if following
+                  else finish(self._match.stages))
+        if result is None:
+            return Decision()
+        start = self._match.odom
+        self._match = None
         self.counts["global_matches"] += 1
-        if self.config.hypotheses is not None and self.make_tracker is not None:
-            return self._seed_bank(t, result)
+        if following:
+            return self._seed_bank(t, result, start, odom)
         decision = self._decide(t, result)
         decision.result = result
         return decision
 
-    def _seed_bank(self, t: float, result: GlobalResult) -> Decision:
-        """Follow the match's poses, each with its own filter (:mod:`fusion.hypotheses`)."""
+    def _seed_bank(self, t: float, result: GlobalResult, matched_at: NDArray,
+                   odom: NDArray) -> Decision:
+        """Follow the match's poses, each with its own filter (:mod:`fusion.hypotheses`): they
+        were found where the odometry read ``matched_at``, and are followed from ``odom``."""
         hyps = result.hypotheses
         if not hyps:
             self.views.failures += 1
@@ -286,9 +329,10 @@ class AmbiguityManager:
             self._bank = self._new_bank()
         covs = [0.5 * (np.asarray(h.cov, float) + np.asarray(h.cov, float).T)
                 + self._reinit_floor for h in hyps]
-        poses = [np.asarray(h.pose, float) for h in hyps]
-        self._bank.seed(t, self.views.latest_odom, poses, covs, [h.score for h in hyps],
-                        [self._displacement_prior(pose) for pose in poses])
+        since = relative(matched_at, odom)
+        poses = [compose(np.asarray(h.pose, float), since) for h in hyps]
+        self._bank.seed(t, odom, poses, covs, [h.score for h in hyps],
+                        [self._displacement_prior(pose, odom) for pose in poses])
         self._log_hypotheses(t, hyps[:len(self._bank)])
         self._go(t, State.COLLECTING,
                  f"following {len(self._bank)} hypotheses (best score {hyps[0].score:.2f})")
@@ -330,16 +374,16 @@ class AmbiguityManager:
         assert self.config.hypotheses is not None
         return self.fit.least_right(self.config.hypotheses.fit_quantile)
 
-    def _displacement_prior(self, pose: NDArray) -> float:
-        """How plausible a pose is from where tracking last was, carried by odometry:
-        N(d; 0, ``kidnap_prior_sigma``²) in the distance d, over a floor of
-        ``kidnap_probability`` for a robot carried anywhere; 1 without a belief (global
-        start)."""
+    def _displacement_prior(self, pose: NDArray, odom: NDArray) -> float:
+        """How plausible a pose (where the odometry read ``odom``) is from where tracking
+        last was, carried by odometry: N(d; 0, ``kidnap_prior_sigma``²) in the distance d, over
+        a floor of ``kidnap_probability`` for a robot carried anywhere; 1 without a belief
+        (global start)."""
         sigma = self.config.kidnap_prior_sigma
-        if sigma is None or self._prior is None or not self.views:
+        if sigma is None or self._prior is None:
             return 1.0
-        belief, _, odom = self._prior
-        moved = compose(belief, relative(odom, self.views.latest_odom))
+        belief, _, belief_odom = self._prior
+        moved = compose(belief, relative(belief_odom, odom))
         d = math.hypot(pose[0] - moved[0], pose[1] - moved[1])
         return max(math.exp(-0.5 * (d / sigma) ** 2), self.config.kidnap_probability)
 
@@ -458,6 +502,8 @@ class AmbiguityManager:
                 self._trusted_by_prior_only = False
         if new is State.LOST:
             self._prior = None  # no belief to break ties with
+        if new is State.TRACKING or self.state is State.TRACKING:
+            self._match = None  # a match under way is for the views it started from
         if new is State.TRACKING:
             self._trusted_by_prior_only = False  # set again by the caller when it is so
         self.transitions.append(Transition(t, self.state, new, reason))
