@@ -60,8 +60,10 @@ from houghloc.hypothesis_scores import (
 )
 from houghloc.localize import scan_reach
 from houghloc.map_lookup import (
+    AngleIndex,
     angle_index,
     inside_map,
+    segment_spans,
     wall_distance,
 )
 from houghloc.match_result import (
@@ -111,10 +113,9 @@ def global_match(
 
 def finish(stages: Stages) -> GlobalResult:
     """Run a staged match's remaining stages; its result."""
-    while True:
-        result = advance(stages, budget=math.inf)
-        if result is not None:
-            return result
+    result = advance(stages, budget=math.inf)
+    assert result is not None  # no budget left unspent: every stage ran
+    return result
 
 
 def advance(stages: Stages, budget: float) -> GlobalResult | None:
@@ -133,11 +134,19 @@ def advance(stages: Stages, budget: float) -> GlobalResult | None:
 def prepare_map(map: SegmentMap, config: GlobalMatchConfig = _DEFAULT_CONFIG,
                 kinds: tuple[str, ...] = ("wall",)) -> None:
     """Build (and cache on the map) what matching against it looks up: the angle index of its
-    line pairs and the distance transform of its walls; a match then starts at once."""
+    line pairs, the distance transform of its walls and where its lines' segments lie; a match
+    then starts at once."""
     kinds = tuple(kinds)
     if np.isin(map.kinds, kinds).any():
-        angle_index(map, kinds, config.min_pair_angle, config.angle_tol_max + 1e-9)
+        _pair_index(map, kinds, config)
         wall_distance(map, kinds, config.dt_cell)
+        segment_spans(map, kinds, config.inlier_distance)
+
+
+def _pair_index(map: SegmentMap, kinds: tuple[str, ...], config: GlobalMatchConfig
+                ) -> AngleIndex:
+    """The map's (cached) angle index, padded for the widest angle window."""
+    return angle_index(map, kinds, config.min_pair_angle, config.angle_tol_max + 1e-9)
 
 
 def global_match_stages(
@@ -152,7 +161,8 @@ def global_match_stages(
     to keep up with spreads it over several scans (:func:`advance`), so that no scan waits for
     a whole match. The stages: hypotheses from pairs; their votes; the votes' cheap scores;
     the best cells' full scores; their refinement; then, only if the pairs gave none, the
-    slide's coarse grid, its fine grid, and the slid poses' refinement."""
+    slide's check for a second line on a wall, its coarse grid (both in pieces of
+    ``STAGE_LOOKUPS``), its fine grid, and the slid poses' refinement."""
     kinds = tuple(kinds)
     pts = _as_points(points)
     if pts is None:
@@ -187,7 +197,7 @@ def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
     if len(pair_i) == 0:
         return GlobalResult(reason=f"fewer than two non-parallel observed lines (angle ≥ "
                             f"{config.min_pair_angle_deg:g}°): the pose is not determined")
-    index = angle_index(map, kinds, config.min_pair_angle, config.angle_tol_max + 1e-9)
+    index = _pair_index(map, kinds, config)
     if len(index.delta) == 0:
         return GlobalResult(reason="the map has no two non-parallel lines")
     poses = pair_hypotheses(lines, pair_i, pair_k, index, config, near)

@@ -23,6 +23,7 @@ from houghloc.map_lookup import (
     inside_map,
     map_bbox,
     map_lines_of_kinds,
+    segment_spans,
     wall_distance,
 )
 from houghloc.match_result import (
@@ -38,38 +39,6 @@ from houghloc.match_result import (
 from houghloc.pose_hypotheses import row_chunks, top_indices
 from houghloc.refine import Lines
 from houghloc.segment_map import SegmentMap
-
-
-class SegmentSpans:
-    """Where the segments of each oriented map line lie along it: the intervals [lo, hi] of
-    s along u = (−sin β, cos β), widened by ``margin`` at both ends (a point that close is on
-    the wall), one row per oriented line (the canonical lines ``mlines``, then the same lines
-    turned by π), padded with empty intervals."""
-
-    def __init__(self, map: SegmentMap, mlines: NDArray[np.intp], kinds: tuple[str, ...],
-                 margin: float) -> None:
-        segs = np.flatnonzero(np.isin(map.kinds, kinds))
-        row = np.searchsorted(mlines, map.line_of_segment[segs])
-        s0, s1 = map.seg_s0[segs] - margin, map.seg_s1[segs] + margin
-        n = len(mlines)
-        # turned by π, u is reversed: the interval [s0, s1] becomes [−s1, −s0]
-        row, lo, hi = np.r_[row, row + n], np.r_[s0, -s1], np.r_[s1, -s0]
-        order = np.argsort(row, kind="stable")
-        row, lo, hi = row[order], lo[order], hi[order]
-        counts = np.bincount(row, minlength=2 * n)
-        col = np.arange(len(row)) - np.repeat(np.cumsum(counts) - counts, counts)
-        self.starts = np.full((2 * n, max(int(counts.max(initial=0)), 1)), np.inf)
-        self.ends = np.full_like(self.starts, -np.inf)
-        self.starts[row, col], self.ends[row, col] = lo, hi
-        self.lo, self.hi = self.starts.min(axis=1), self.ends.max(axis=1)
-
-    def coverage(self, which: NDArray[np.intp], s0: NDArray, s1: NDArray) -> NDArray:
-        """The fraction of each interval [s0, s1] along oriented line ``which`` that lies on
-        its segments (overlapping segments may count twice: at most 1 is reported)."""
-        overlap = (np.minimum(self.ends[which], np.asarray(s1)[:, None])
-                   - np.maximum(self.starts[which], np.asarray(s0)[:, None]))
-        length = np.maximum(np.asarray(s1) - np.asarray(s0), 1e-9)
-        return np.minimum(np.clip(overlap, 0.0, None).sum(axis=1) / length, 1.0)
 
 
 def slide_stages(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatchConfig,
@@ -119,7 +88,7 @@ def slide_stages(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
     # inside it, when one is given)
     u_all = np.stack((-np.sin(beta), np.cos(beta)), -1)
     s_lo, s_hi = (corners @ u_all.T).min(axis=0), (corners @ u_all.T).max(axis=0)
-    on_line = SegmentSpans(map, mlines, kinds, config.inlier_distance)
+    on_line = segment_spans(map, kinds, config.inlier_distance)
     a, b = lines.s0[strong], lines.s1[strong]
     s_lo, s_hi = np.maximum(s_lo, on_line.lo - b), np.minimum(s_hi, on_line.hi - a)
     rows = np.arange(len(beta))

@@ -402,3 +402,24 @@ def test_localizer_config_errors_name_the_file_and_the_field(content: str | None
         path.write_text(content)
     with pytest.raises(ConfigError, match=rf"config {path}.*{problem}"):
         LocalizerConfig.from_yaml(path)
+
+
+def test_a_scan_is_fused_with_blas_on_one_thread_and_the_process_keeps_its_threads():
+    """Inside `Localizer.on_points` NumPy's BLAS has one thread (its idle threads would spin on
+    the other cores for a scan's small arrays); outside, the process's own setting is back."""
+    from threadpoolctl import threadpool_info
+
+    from fusion.localizer import Localizer
+    from houghloc.jit import one_blas_thread
+
+    def blas_threads() -> set[int]:
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    before = blas_threads()
+    if not before or before == {1}:
+        pytest.skip(f"NumPy's BLAS has one thread here already ({before}): nothing to limit")
+    inside: list[set[int]] = []
+    one_blas_thread(lambda: inside.append(blas_threads()))()
+    assert inside == [{1}]
+    assert blas_threads() == before
+    assert getattr(Localizer.on_points, "__wrapped__", None) is not None  # on_points is limited

@@ -349,8 +349,7 @@ def _tap(stages, counter: list) -> GlobalResult:
 def test_segment_spans_cover_what_the_segments_cover(office: SegmentMap) -> None:
     """The fraction of an interval along an oriented map line that its segments cover, against
     a fine sampling of the interval (both orientations of every line)."""
-    from houghloc.map_lookup import map_lines_of_kinds
-    from houghloc.slide import SegmentSpans
+    from houghloc.map_lookup import SegmentSpans, map_lines_of_kinds
 
     mlines = map_lines_of_kinds(office, ("wall",))
     spans = SegmentSpans(office, mlines, ("wall",), 0.0)
