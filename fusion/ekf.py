@@ -16,7 +16,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.status import ScanStatus
-from houghloc.geometry import Pose, compose, wrap_angle
+from houghloc.geometry import Pose, compose, positive_definite, wrap_angle
 from houghloc.matching import gate_threshold
 
 _FULL_BASIS = np.eye(3)
@@ -53,12 +53,10 @@ def motion_jacobians(
 def symmetric_pd(p: NDArray[np.float64]) -> NDArray[np.float64]:
     """P ← (P + Pᵀ)/2, with eigenvalues raised to a tiny floor if rounding made it indefinite."""
     p = 0.5 * (p + p.T)
-    try:
-        np.linalg.cholesky(p)
+    if positive_definite(p):
         return p
-    except np.linalg.LinAlgError:
-        w, v = np.linalg.eigh(p)
-        return (v * np.maximum(w, _EIGEN_FLOOR)) @ v.T
+    w, v = np.linalg.eigh(p)
+    return (v * np.maximum(w, _EIGEN_FLOOR)) @ v.T
 
 
 def _constant_jacobian(_x: NDArray[np.float64], h: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -127,8 +125,10 @@ class PoseEKF(ExtendedKalmanFilter):
             # (Joseph form).
             super().update(h @ self.x + y, _constant_jacobian, _project, R=h @ r @ h.T,
                            args=(h,), hx_args=(h,))
-            np.linalg.cholesky(self.S)  # S must be positive definite, not merely invertible
         except np.linalg.LinAlgError:
+            self.x, self.P = prior_x, prior_p
+            return UpdateOutcome(False, 0.0, 0, status=ScanStatus.INVALID)
+        if not positive_definite(self.S):  # S must be positive definite, not merely invertible
             self.x, self.P = prior_x, prior_p
             return UpdateOutcome(False, 0.0, 0, status=ScanStatus.INVALID)
         nis = float(self.y @ self.SI @ self.y)

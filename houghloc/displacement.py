@@ -69,11 +69,9 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
         z = np.zeros((3, 0))
         return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
                             z, np.eye(3), 0.0, 0)
-    terms = _normal_equations(np.ascontiguousarray(matches.cov),
-                              np.ascontiguousarray(matches.residual), np.cos(beta), np.sin(beta))
-    info = terms[_INFO_LAYOUT]
-    b = -terms[6:9]
-    full, delta, cov, chi2_total = _full_rank_solution(terms, info, b, max_observable_sigma)
+    terms, info, b, full, delta, cov, chi2_total = _solve(
+        np.ascontiguousarray(matches.cov), np.ascontiguousarray(matches.residual),
+        np.cos(beta), np.sin(beta), max_observable_sigma)
     if full:  # the usual case: the whole pose is observed
         return Displacement(delta, cov, info, 3, _FULL, _NONE, chi2_total,
                             max(2 * len(matches) - 3, 0), matches, beta)
@@ -100,6 +98,21 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
     rank = u.shape[1]
     return Displacement(delta, cov, info, rank, u, v, chi2_total,
                         max(2 * len(matches) - rank, 0), matches, beta)
+
+
+@njit
+def _solve(cov: NDArray, residual: NDArray, nx: NDArray, ny: NDArray,
+           max_observable_sigma: float) -> tuple:
+    """The normal equations' sums, Λ, b and, when the whole pose is observable, its solution
+    (:func:`_normal_equations`, :func:`_full_rank_solution`), in one call."""
+    terms = _normal_equations(cov, residual, nx, ny)
+    info = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            info[i, j] = terms[_INFO_LAYOUT[i, j]]
+    b = -terms[6:9]
+    full, delta, out_cov, chi2 = _full_rank_solution(terms, info, b, max_observable_sigma)
+    return terms, info, b, full, delta, out_cov, chi2
 
 
 @njit

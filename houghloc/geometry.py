@@ -152,12 +152,38 @@ def _ray_segment_kernel(ox: float, oy: float, dirs: NDArray, starts: NDArray, en
     for j in range(len(starts)):
         p0x, p0y = starts[j, 0] - ox, starts[j, 1] - oy
         ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
-        num_t = p0x * ey - p0y * ex
         for i in range(len(dirs)):
-            dx, dy = dirs[i, 0], dirs[i, 1]
-            # ±inf for parallel rays (and overflow for nearly parallel ones): u becomes ±inf
-            # or nan → a miss
-            inv = 1.0 / (dx * ey - dy * ex)
-            tij, u = num_t * inv, (dy * p0x - dx * p0y) * inv
-            t[i, j] = tij if (not (u < 0.0 or u > 1.0) and tij > 1e-9) else np.inf
+            t[i, j] = ray_hit(dirs[i, 0], dirs[i, 1], p0x, p0y, ex, ey)
     return t
+
+
+@njit
+def ray_hit(dx: float, dy: float, p0x: float, p0y: float, ex: float, ey: float) -> float:
+    """Distance along the unit ray (dx, dy) from the origin to the segment from (p0x, p0y)
+    (relative to the origin) along (ex, ey); ``inf`` where it misses (Cramer's rule)."""
+    # ±inf for parallel rays (and overflow for nearly parallel ones): u becomes ±inf or nan →
+    # a miss
+    inv = 1.0 / (dx * ey - dy * ex)
+    t, u = (p0x * ey - p0y * ex) * inv, (dy * p0x - dx * p0y) * inv
+    return t if (not (u < 0.0 or u > 1.0) and t > 1e-9) else np.inf
+
+
+@njit
+def positive_definite(m: NDArray[np.float64]) -> bool:
+    """Is the symmetric 1×1, 2×2 or 3×3 ``m`` positive definite: are its leading principal
+    minors all positive (Sylvester's criterion)? A few products where a Cholesky factorisation
+    costs a LAPACK call; NaN fails."""
+    k = m.shape[0]
+    if not m[0, 0] > 0.0:
+        return False
+    if k == 1:
+        return True
+    minor2 = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    if not minor2 > 0.0:
+        return False
+    if k == 2:
+        return True
+    det = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+           - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+           + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    return bool(det > 0.0)

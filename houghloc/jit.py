@@ -92,7 +92,7 @@ def warm_up() -> float:
     import numpy as np
 
     from houghloc.config import HoughConfig
-    from houghloc.geometry import ray_segment_distances
+    from houghloc.geometry import positive_definite, ray_segment_distances
     from houghloc.global_match import global_match
     from houghloc.localize import localize_scan, observe_lines
     from houghloc.map_lookup import wall_distance
@@ -114,9 +114,11 @@ def warm_up() -> float:
     lines = observe_lines(points, HoughConfig())[2]
     global_match(lines, points, room)
     global_match(lines, points, room, near=Neighbourhood(pose, 1.0, 0.3))
+    positive_definite(np.eye(3))
     walls = wall_distance(room, ("wall",), 0.05)
     for smooth in (False, True):
         walls.at(pose[None, :], points[:, 0], points[:, 1], smooth)
         walls.closeness(pose[None, :], points[:, 0], points[:, 1], 0.12, smooth)
+    walls.on_walls(pose[None, :], points[:, 0], points[:, 1], 0.12)
     _warmed_up = time.perf_counter() - started
     return _warmed_up

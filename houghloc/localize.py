@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike, NDArray
 from houghloc.config import HoughConfig
 from houghloc.displacement import UNOBSERVED_VARIANCE, estimate_displacement
 from houghloc.geometry import TWO_PI, inverse_3x3, wrap_scalar
+from houghloc.jit import njit
 from houghloc.matching import Matches, associate, gate_threshold, reassociate
 from houghloc.peaks import find_peaks
 from houghloc.refine import Lines, refine_lines
@@ -87,7 +88,16 @@ def clean_points(points_xy: ArrayLike) -> tuple[NDArray[np.float64], int]:
 def scan_reach(points: NDArray[np.float64]) -> float:
     """How far map lines can be seen in these (non-empty) points: the farthest point plus half a
     metre, rounded up to whole metres so that the map's memoised visibility is reused."""
-    return float(math.ceil(math.sqrt(np.einsum("ij,ij->i", points, points).max()) + 0.5))
+    return float(math.ceil(math.sqrt(_max_norm_sq(np.ascontiguousarray(points, dtype=float)))
+                           + 0.5))
+
+
+@njit
+def _max_norm_sq(points: NDArray[np.float64]) -> float:
+    top = 0.0
+    for i in range(points.shape[0]):
+        top = max(top, points[i, 0] * points[i, 0] + points[i, 1] * points[i, 1])
+    return top
 
 
 def observe_lines(points: NDArray[np.float64], config: HoughConfig

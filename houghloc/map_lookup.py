@@ -75,6 +75,16 @@ class WallDistance:
                             _flat(x), _flat(y), smooth)
         return out.reshape((len(poses),) + shape)
 
+    def on_walls(self, poses: NDArray, x: NDArray, y: NDArray, within: float
+                 ) -> NDArray[np.float64]:
+        """The fraction of robot-frame points (``x``, ``y``) placed at each of ``poses`` (P×3)
+        whose cell's distance (:meth:`at`, float32) is at most ``within`` (in float32, as NumPy
+        compares them): (P,), in one pass, no P×N array."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        return _on_walls_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,
+                            poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]), _flat(x), _flat(y),
+                            np.float32(within))
+
     def closeness(self, poses: NDArray, x: NDArray, y: NDArray, reach: float,
                   smooth: bool = False) -> NDArray[np.float64]:
         """How close robot-frame points (``x``, ``y``) placed at each of ``poses`` (P×3) lie
@@ -122,6 +132,24 @@ def _distances_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: N
         for k in range(len(x)):
             out[p, k] = _distance(grid, (px + c * x[k] - s * y[k] - ox) * inv_cell,
                                   (py + s * x[k] + c * y[k] - oy) * inv_cell, smooth)
+    return out
+
+
+@njit
+def _on_walls_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: NDArray,
+                 cos_t: NDArray, sin_t: NDArray, x: NDArray, y: NDArray, within: np.float32
+                 ) -> NDArray[np.float64]:
+    out = np.zeros(len(poses))
+    for p in range(len(poses)):
+        c, s, px, py = cos_t[p], sin_t[p], poses[p, 0], poses[p, 1]
+        count = 0
+        for k in range(len(x)):
+            d = np.float32(_distance(grid, (px + c * x[k] - s * y[k] - ox) * inv_cell,
+                                     (py + s * x[k] + c * y[k] - oy) * inv_cell, False))
+            if d <= within:
+                count += 1
+        if len(x):
+            out[p] = count / len(x)
     return out
 
 

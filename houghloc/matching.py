@@ -111,21 +111,20 @@ def _match(lines: Lines, refs: References, table: PairTable, pose: NDArray, pose
     """Gate, extent check and resolution of one pair table (:func:`_match_kernel`), with the
     reasons for what was left out."""
     margin = -1.0 if config.decisive_d2_margin is None else config.decisive_d2_margin
-    li, rj, d2, n_cand, ambiguous, claims = _match_kernel(
+    li, rj, residual, cov, d2, n_cand, ambiguous, claims = _match_kernel(
         np.ascontiguousarray(lines.cov), lines.s0, lines.s1, table.d_theta, table.d_rho,
         table.sign, table.cos_beta, table.sin_beta, refs.seg_ref, refs.seg_s0, refs.seg_s1,
         np.ascontiguousarray(pose, dtype=float), np.ascontiguousarray(pose_cov, dtype=float),
         gate_threshold(config.gate_probability), config.extent_margin,
         config.min_extent_coverage, config.nearest_neighbour_only, margin, config.theta_step,
         config.rho_step)
-    reasons = [f"line θ={np.degrees(lines.theta[i]):.1f}° ρ={lines.rho[i]:.2f} m fits "
-               f"{int(n_cand[i])} map lines" for i in np.flatnonzero(n_cand >= 2)[:3]]
-    reasons += [f"{int(c)} lines claim one map line" for c in claims]
-    cov = lines.cov[li]
-    cov[:, 0, 1] *= table.sign[li, rj]  # the flipped representation negates cov(θ, ρ)
-    cov[:, 1, 0] = cov[:, 0, 1]
-    return Matches(li, rj, np.array((table.d_theta[li, rj], table.d_rho[li, rj])).T, cov, d2,
-                   np.flatnonzero(ambiguous), tuple(reasons), table)
+    reasons: tuple[str, ...] = ()
+    if len(ambiguous):  # the reasons, only when there is something to explain
+        reasons = tuple(
+            [f"line θ={np.degrees(lines.theta[i]):.1f}° ρ={lines.rho[i]:.2f} m fits "
+             f"{int(n_cand[i])} map lines" for i in np.flatnonzero(n_cand >= 2)[:3]]
+            + [f"{int(c)} lines claim one map line" for c in claims])
+    return Matches(li, rj, residual, cov, d2, ambiguous, reasons, table)
 
 
 @njit
@@ -170,8 +169,10 @@ def _match_kernel(l_cov: NDArray, l_s0: NDArray, l_s1: NDArray, d_theta: NDArray
        fine when they agree with each other (the same wall seen twice); otherwise neither can be
        trusted.
 
-    Returns the accepted pairs (line, reference, d²), each line's candidate count, the lines
-    left ambiguous, and the number of lines in each conflicting claim.
+    Returns the accepted pairs (line, reference), their residuals (Δθ, Δρ) and the lines'
+    covariances in the representation that fits (the flipped one negates cov(θ, ρ)), their d²,
+    each line's candidate count, the lines left ambiguous, and the number of lines in each
+    conflicting claim.
     """
     k, n_ref = d_theta.shape
     cb, sb = cos_beta, sin_beta
@@ -262,7 +263,14 @@ def _match_kernel(l_cov: NDArray, l_s0: NDArray, l_s1: NDArray, d_theta: NDArray
                 conflicts.append(len(idx))
                 break
     keep = [m for m in range(len(li)) if not ambiguous[li[m]]]
-    out_l = np.array([li[m] for m in keep], np.intp)
-    out_r = np.array([rj[m] for m in keep], np.intp)
-    out_d2 = np.array([d2[li[m], rj[m]] for m in keep], np.float64)
-    return out_l, out_r, out_d2, n_cand, ambiguous, np.array(conflicts, np.intp)
+    n_out = len(keep)
+    out_l, out_r = np.empty(n_out, np.intp), np.empty(n_out, np.intp)
+    out_res, out_cov, out_d2 = np.empty((n_out, 2)), np.empty((n_out, 2, 2)), np.empty(n_out)
+    for q in range(n_out):
+        i, j = li[keep[q]], rj[keep[q]]
+        out_l[q], out_r[q], out_d2[q] = i, j, d2[i, j]
+        out_res[q, 0], out_res[q, 1] = d_theta[i, j], d_rho[i, j]
+        out_cov[q, 0, 0], out_cov[q, 1, 1] = l_cov[i, 0, 0], l_cov[i, 1, 1]
+        out_cov[q, 0, 1] = out_cov[q, 1, 0] = l_cov[i, 0, 1] * sign[i, j]
+    return (out_l, out_r, out_res, out_cov, out_d2, n_cand, np.flatnonzero(ambiguous),
+            np.array(conflicts, np.intp))

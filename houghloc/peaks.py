@@ -47,15 +47,27 @@ def _peaks_kernel(acc: NDArray[np.int64], threshold: int, w: int, h: int, limit:
     i_rho = np.empty(64, np.intp)
     count = 0
     for i in range(n_theta):
+        top = acc[i, 0]  # most rows hold no cell above the threshold: one vectorised pass
+        for j in range(1, n_rho):
+            top = max(top, acc[i, j])
+        if top < threshold:
+            continue
         for j in range(n_rho):
             v = acc[i, j]
             if v < threshold:
                 continue
+            # the cells beside it first: they reject most cells on a peak's slopes
+            if (j > 0 and acc[i, j - 1] > v) or (j + 1 < n_rho and acc[i, j + 1] > v):
+                continue
             peak = True
             for di in range(-w, w + 1):
-                row = acc[(i + di) % n_theta]
+                ii = i + di  # wrapped around θ
+                if ii < 0:
+                    ii += n_theta
+                elif ii >= n_theta:
+                    ii -= n_theta
                 for jj in range(max(j - h, 0), min(j + h + 1, n_rho)):
-                    if row[jj] > v:
+                    if acc[ii, jj] > v:
                         peak = False
                         break
                 if not peak:

@@ -75,7 +75,9 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
     observed pair p: θ = β − θ_obs from either line, their circular mean; (x, y) = N⁻¹ (r − ρ).
     With a neighbourhood, a pose whose heading is outside it is left out before its position is
     solved (θ is within half the angle window of θ_a: a first cut on θ_a alone)."""
-    out = np.empty((counts.sum(), 3))
+    # with a neighbourhood a few percent of the candidates are kept: the array grows as needed
+    # rather than holding them all (megabytes, each page touched for the first time)
+    out = np.empty((min(counts.sum(), 4096) if use_near else counts.sum(), 3))
     h = 0
     for p in range(len(pair_i)):
         i, k = pair_i[p], pair_k[p]
@@ -89,6 +91,8 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
             th = (th_a + half + np.pi) % TWO_PI - np.pi
             if use_near and abs((th - near_theta + np.pi) % TWO_PI - np.pi) > near_radius:
                 continue
+            if h == len(out):
+                out = np.concatenate((out, np.empty_like(out)))
             rhs_a, rhs_b = r_a[e] - rho[i], r_b[e] - rho[k]
             out[h, 0] = n_inv[e, 0, 0] * rhs_a + n_inv[e, 0, 1] * rhs_b
             out[h, 1] = n_inv[e, 1, 0] * rhs_a + n_inv[e, 1, 1] * rhs_b

@@ -20,7 +20,7 @@ from fusion.motion import (
     interpolate,
 )
 from fusion.tracker import PoseTracker
-from houghloc.geometry import compose, relative, wrap_angle
+from houghloc.geometry import compose, positive_definite, relative, wrap_angle
 
 # Real odometry frames start anywhere: the CARMEN logs begin here.
 ODOM_ORIGIN = np.array([576.5, 0.1, -2.26])
@@ -455,3 +455,23 @@ def test_increment_is_frame_independent():
     np.testing.assert_allclose(
         increment(compose(ODOM_ORIGIN, a), compose(ODOM_ORIGIN, b)), increment(a, b), atol=1e-12
     )
+
+
+@settings(max_examples=300, deadline=None)
+@given(k=st.integers(1, 3), seed=st.integers(0, 2**32 - 1),
+       signs=st.lists(st.sampled_from([-1.0, 1.0]), min_size=3, max_size=3))
+def test_positive_definite_agrees_with_cholesky(k, seed, signs) -> None:
+    """Sylvester's criterion says what a Cholesky factorisation says, for symmetric matrices
+    whose eigenvalues (of either sign) are not within rounding of zero."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(k, k)))
+    scale = 10.0 ** rng.uniform(-6, 2, k)
+    m = (q * (np.array(signs[:k]) * scale)) @ q.T
+    m = 0.5 * (m + m.T)
+    try:
+        np.linalg.cholesky(m)
+        expected = True
+    except np.linalg.LinAlgError:
+        expected = False
+    assert positive_definite(m) is expected
+    assert not positive_definite(np.full((k, k), np.nan))

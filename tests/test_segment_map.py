@@ -6,8 +6,12 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from houghloc import MapError, SegmentMap
+from houghloc.geometry import ray_segment_distances
+from houghloc.segment_map import _first_hits_and_clearance, _ray_directions
 from tests.conftest import MAPS
 
 
@@ -67,6 +71,46 @@ def test_spatial_index_returns_only_nearby_segments(office: SegmentMap) -> None:
     assert len(near) and len(far) and not set(near) & set(far)
     mids = (office.starts + office.ends) / 2
     assert np.all(np.linalg.norm(mids[near] - [1.0, 1.0], axis=1) < 2.0 + 14.0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_rays=st.sampled_from([8, 90, 180, 360]),
+       max_range=st.floats(0.5, 40.0), where=st.sampled_from(["free", "endpoint", "on"]))
+def test_first_hits_only_try_the_rays_a_segment_spans(seed, n_rays, max_range, where) -> None:
+    """Trying each segment only on the rays within its angular extent gives the segments that
+    trying every ray on every segment does (and on a tie, the same one)."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 40))
+    starts = rng.uniform(-10, 10, (n, 2))
+    ends = starts + rng.normal(0, 3, (n, 2))
+    if seed % 3 == 0:  # walls on a grid: parallel rays, shared corners, ties
+        starts, ends = np.round(starts), np.round(ends)
+    origin = {"free": rng.uniform(-10, 10, 2), "endpoint": starts[0].copy(),
+              "on": 0.5 * (starts[0] + ends[0])}[where]
+    phi = np.linspace(0.0, 2 * math.pi, n_rays, endpoint=False)
+    t = ray_segment_distances(origin, np.column_stack((np.cos(phi), np.sin(phi))), starts, ends)
+    t[t > max_range] = np.inf
+    expected = np.zeros(n, bool)
+    first = np.argmin(t, axis=1)  # the first of equal distances, as the sweep keeps
+    expected[first[np.isfinite(t.min(axis=1))]] = True
+    hit, _ = _first_hits_and_clearance(_ray_directions(n_rays), max_range, starts, ends,
+                                       float(origin[0]), float(origin[1]))
+    assert np.array_equal(hit, expected)
+
+
+@settings(max_examples=100, deadline=None)
+@given(x=st.floats(-10, 40), y=st.floats(-10, 25), radius=st.floats(0.0, 30.0))
+def test_segments_near_are_those_with_an_index_point_in_reach(office: SegmentMap, x, y,
+                                                              radius) -> None:
+    spacing = office._index_spacing
+    reach = radius + spacing
+    expected = []
+    for j, (a, b) in enumerate(zip(office.starts, office.ends, strict=True)):
+        k = max(2, math.ceil(np.linalg.norm(b - a) / spacing) + 1)
+        samples = a + np.linspace(0.0, 1.0, k)[:, None] * (b - a)
+        if (((samples - [x, y]) ** 2).sum(axis=1) <= reach**2).any():
+            expected.append(j)
+    assert office.segments_near((x, y), radius).tolist() == expected
 
 
 def test_round_trip_yaml(tmp_path, office: SegmentMap) -> None:

@@ -62,7 +62,7 @@ class ScanFit:
             return np.zeros(len(poses))
         gm = self.config.global_match
         walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
-        return (walls.at(poses, points[:, 0], points[:, 1]) <= gm.inlier_distance).mean(axis=1)
+        return walls.on_walls(poses, points[:, 0], points[:, 1], gm.inlier_distance)
 
     def fraction(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",)
                  ) -> float:
