@@ -60,7 +60,10 @@ def test_notebooks_are_stored_without_outputs() -> None:
                     f"{path.name}: clear the outputs before committing")
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=[p.stem for p in NOTEBOOKS])
+# the real-log notebook replays a whole log: a slow test, as every whole-log run
+@pytest.mark.parametrize("path", [
+    pytest.param(p, marks=pytest.mark.slow) if p.name in NEEDS_REAL_DATA else p
+    for p in NOTEBOOKS], ids=[p.stem for p in NOTEBOOKS])
 def test_notebook_runs_and_plots(path: Path) -> None:
     started = time.perf_counter()
     try:

@@ -190,6 +190,7 @@ def _office_spec(folder: Path, methods: list[str], protocols: list[str],
                           "methods": methods, "protocols": protocols, "grid": grid or {}})
 
 
+@pytest.mark.slow  # four methods, two protocols: a benchmark's worth of runs
 def test_peers_localize_the_simulated_office(office_run, tmp_path):
     pytest.importorskip("small_gicp", reason="the peers extra is not installed "
                         "(pip install -e '.[peers]'; make test installs it)")
