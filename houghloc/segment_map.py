@@ -375,12 +375,19 @@ def _first_hits_and_clearance(dirs: NDArray, max_range: float, starts: NDArray, 
             hit[first[i]] = True
     clearance_sq = np.inf
     for j in range(len(starts)):
-        p0x, p0y = starts[j, 0] - ox, starts[j, 1] - oy
-        ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
-        along = min(max(-(p0x * ex + p0y * ey) / (ex * ex + ey * ey), 0.0), 1.0)
-        qx, qy = p0x + along * ex, p0y + along * ey
-        clearance_sq = min(clearance_sq, qx**2 + qy**2)
+        clearance_sq = min(clearance_sq, _distance_sq(starts, ends, j, ox, oy))
     return hit, math.sqrt(clearance_sq)
+
+
+@njit
+def _distance_sq(starts: NDArray, ends: NDArray, j: int, ox: float, oy: float) -> float:
+    """Squared distance from (ox, oy) to segment ``j``: to the origin's projection, clamped to
+    the segment (its start when the segment has no length)."""
+    p0x, p0y = starts[j, 0] - ox, starts[j, 1] - oy
+    ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
+    along = min(max(-(p0x * ex + p0y * ey) / max(ex * ex + ey * ey, 1e-300), 0.0), 1.0)
+    qx, qy = p0x + along * ex, p0y + along * ey
+    return qx * qx + qy * qy
 
 
 @njit
@@ -395,11 +402,7 @@ def _segments_near(starts: NDArray, ends: NDArray, samples: NDArray, first_sampl
     out = np.empty(len(starts), np.intp)
     count = 0
     for j in range(len(starts)):
-        p0x, p0y = starts[j, 0] - cx, starts[j, 1] - cy
-        ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
-        along = min(max(-(p0x * ex + p0y * ey) / max(ex * ex + ey * ey, 1e-300), 0.0), 1.0)
-        qx, qy = p0x + along * ex, p0y + along * ey
-        if qx * qx + qy * qy > bound:
+        if _distance_sq(starts, ends, j, cx, cy) > bound:
             continue
         for k in range(first_sample[j], first_sample[j + 1]):
             dx, dy = samples[k, 0] - cx, samples[k, 1] - cy
