@@ -38,6 +38,7 @@ import math
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from statistics import NormalDist
 
 import numpy as np
 from numpy.typing import NDArray
@@ -77,8 +78,9 @@ class HypothesisConfig(BaseModel):
         "taken: the match's own views are what proposed it")
     fit_quantile: float = Field(
         0.05, ge=0.0, lt=1.0, description="the pose taken must put as many of its scans' points "
-        "on walls as all but this fraction of tracking's accepted scans did: when no proposed "
-        "pose is right, the best of them still gets most of the weight")
+        "on walls as all but this fraction of tracking's accepted scans did, within the "
+        "sampling noise of its recent fits: when no proposed pose is right, the best of them "
+        "still gets most of the weight")
     independent_points: float = Field(
         30.0, gt=0.0, description="independent observations a scan is worth: L = f^n")
     unexplained_scan_probability: float | None = Field(
@@ -134,6 +136,7 @@ class HypothesisBank:
         self._make_tracker = make_tracker
         self._fit = fit
         self._merge_gate = gate_threshold(config.merge_probability, 3)
+        self._z_accept = NormalDist().inv_cdf(config.accept_probability)
         self.hypotheses: list[Hypothesis] = []
         self._last_update: NDArray[np.float64] | None = None  # odometry at the last weighing
         # a pose is taken only once global matching has proposed rivals to it: tracking's own
@@ -153,12 +156,12 @@ class HypothesisBank:
         self._contested |= origin == "global match"
         # poses proposed while others are followed join them as newcomers: what the followed
         # ones have earned is kept (a newcomer that is one of them merges into it), and the
-        # likeliest new pose is as plausible as the leader: the prior ranks the newcomers
-        # among themselves only, since the place it is centred on (the belief when tracking
-        # was given up) may be the wrong one the bank is there to replace
+        # best-scored new pose starts level with the leader times its prior. The prior weighs
+        # against a newcomer as it would have at the start: a place far from where tracking
+        # was is a kidnap (``kidnap_probability``), however well it scores, and the scans
+        # overturn that in a few weighings (each may weigh up to 1/ε) if it is right
         if self.hypotheses:
-            scale = max(h.weight for h in self.hypotheses) / max(
-                max(s * p for s, p in zip(scores, priors, strict=True)), 1e-6)
+            scale = max(h.weight for h in self.hypotheses) / max(max(scores), 1e-6)
         else:
             scale = 1.0 / (sum(s * p for s, p in zip(scores, priors, strict=True)) or 1.0)
         for pose, cov, score, prior in list(zip(poses, covs, scores, priors, strict=True))[
@@ -270,6 +273,16 @@ class HypothesisBank:
         """The likeliest hypothesis (the bank must not be empty)."""
         return max(self.hypotheses, key=lambda h: h.weight)
 
+    def _fit_noise(self, fit: float) -> float:
+        """How far below ``fit`` the mean of ``min_scans`` fits of a pose that fits ``fit`` falls
+        with probability 1 − ``accept_probability``: a scan is worth n = ``independent_points``
+        observations, so that mean has σ = √(f(1 − f) / (n · min_scans)) (binomial), and the
+        bound is z σ with z the standard normal quantile at ``accept_probability``. Tracking's
+        fits come from the places it went through; a right pose elsewhere sees other clutter."""
+        c = self.config
+        f = min(max(fit, 0.0), 1.0)
+        return self._z_accept * math.sqrt(f * (1.0 - f) / (c.independent_points * c.min_scans))
+
     def _verdict(self, least_fit: float | None) -> BankVerdict:
         leader = self.leader
         c = self.config
@@ -277,7 +290,7 @@ class HypothesisBank:
                 or leader.updates < c.min_scans):
             return BankVerdict()
         recent = float(np.mean(list(leader.fits)[-c.min_scans:]))
-        if least_fit is not None and recent < least_fit:
+        if least_fit is not None and recent < least_fit - self._fit_noise(least_fit):
             return BankVerdict()  # the best of poses that all fit poorly: none is right
         return BankVerdict(leader.pose.copy(), leader.cov.copy(),
                            f"{leader.origin} hypothesis of weight {leader.weight:.3f} after "

@@ -386,6 +386,19 @@ def test_kidnap_twenty_seeds():
     assert all(c == 0 for _, c in trials)  # a confident wrong pose never lasts
 
 
+@pytest.mark.slow
+def test_kidnap_forty_fresh_seeds():
+    """The office kidnap (3 m, 35°) on forty seeds drawn anew on every run: recovered within
+    5 s in at least 95 % (38). Over 200 seeds (2000-2199) 198 were; a wrong fix is used on one
+    scan at most (three of the 200), before the kidnap is found. The seeds are in the message,
+    to replay a failure."""
+    seeds = [int(s) for s in np.random.default_rng().integers(0, 2**31, 40)]
+    trials = {seed: kidnap_trial(seed)[:2] for seed in seeds}
+    ok = [r is not None and r <= 5.0 for r, _ in trials.values()]
+    assert sum(ok) >= 38, trials
+    assert max(c for _, c in trials.values()) <= 1, trials
+
+
 def global_start_trial(seed: int, manager_out: list | None = None,
                        config: LocalizerConfig | None = None) -> float | None:
     rng = np.random.default_rng(100 + seed)

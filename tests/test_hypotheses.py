@@ -153,17 +153,37 @@ def test_look_alike_rooms_decided_by_where_the_robot_was() -> None:
     assert (later is None or later > 5.0) and confident_wrong == 0
 
 
-def test_newcomers_join_as_likely_as_the_leader_ranked_by_score_and_prior(office) -> None:
+def test_newcomers_join_level_with_the_leader_times_their_prior(office) -> None:
     """A global match while poses are followed: what the followed ones earned is kept, the
-    likeliest newcomer (score × prior) starts level with the leader, the others in proportion."""
+    best-scored newcomer starts level with the leader times its displacement prior, the others
+    in proportion to score × prior: a place far from where tracking was (prior 0.01, a kidnap)
+    starts a hundred times behind however well it scores."""
     b = bank(office, lambda poses: [1.0] * len(poses))
     b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [3.0, 1.0])
     b.seed(0.0, np.zeros(3), SPOTS[2:4], [COV, COV], [0.9, 0.6], priors=[0.5, 1.0])
     w = {round(h.pose[0]): h.weight for h in b.hypotheses}
     assert w[2] / w[6] == pytest.approx(3.0)  # the followed keep their odds
-    assert w[14] == pytest.approx(w[2])  # 0.6 × 1.0: the likeliest newcomer
-    assert w[10] / w[14] == pytest.approx(0.45 / 0.6)
+    assert w[10] == pytest.approx(0.5 * w[2])  # the best score, half as plausible a place
+    assert w[14] / w[10] == pytest.approx(0.6 / 0.45)
     assert sum(w.values()) == pytest.approx(1.0)
+    b = bank(office, lambda poses: [1.0] * len(poses))
+    b.seed(0.0, np.zeros(3), SPOTS[:1], [COV], [1.0])
+    b.seed(0.0, np.zeros(3), SPOTS[1:2], [COV], [1.0], priors=[0.01])
+    assert [h.weight for h in b.hypotheses] == pytest.approx([1 / 1.01, 0.01 / 1.01])
+
+
+def test_a_right_pose_that_fits_a_little_below_tracking_is_taken(office) -> None:
+    """Tracking's scans put at least 0.94 of their points on walls (its 5 % quantile); after a
+    kidnap the right pose sees clutter tracking never saw and fits 0.92: within the sampling
+    noise of two scans worth 30 observations each (1.645 σ = 0.036), so it is taken; one that
+    fits 0.85 is not."""
+    verdicts = {}
+    for fit in (0.92, 0.85):
+        b = bank(office, lambda poses, f=fit: [f, 0.1][: len(poses)])
+        b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+        verdicts[fit] = [weigh(b, odom=(0.2 * k, 0.0, 0.0), least_fit=0.94) for k in (1, 2, 3)]
+    assert verdicts[0.92][1].pose is not None
+    assert all(v.pose is None for v in verdicts[0.85])
 
 
 def test_tracking_given_up_too_early_is_taken_back_without_a_jump() -> None:
