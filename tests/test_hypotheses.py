@@ -175,7 +175,7 @@ def test_newcomers_join_level_with_the_leader_times_their_prior(office) -> None:
 def test_a_right_pose_that_fits_a_little_below_tracking_is_taken(office) -> None:
     """Tracking's scans put at least 0.94 of their points on walls (its 5 % quantile); after a
     kidnap the right pose sees clutter tracking never saw and fits 0.92: within the sampling
-    noise of two scans worth 30 observations each (1.645 σ = 0.036), so it is taken; one that
+    noise of two scans worth 30 observations each (1.645 σ = 0.050: 0.89), so it is taken; one that
     fits 0.85 is not."""
     verdicts = {}
     for fit in (0.92, 0.85):
