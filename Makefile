@@ -70,3 +70,4 @@ lint: setup
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache site docs/notebooks
+	find houghloc fusion -name '*.nbi' -delete -o -name '*.nbc' -delete

@@ -20,13 +20,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from houghloc.config import HoughConfig
 from houghloc.geometry import inverse_3x3
 from houghloc.jit import njit
-from houghloc.matching import Matches
+from houghloc.matching import (
+    Matches,
+    associate,
+    associate_kernel,
+    match_settings,
+    matches_found,
+)
+from houghloc.refine import Lines
+from houghloc.segment_map import References
 
 UNOBSERVED_VARIANCE = 1.0e6  # m² (or rad²): finite, so no NaN downstream, and plainly "unknown"
 _FULL = np.column_stack(((0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0)))
@@ -34,7 +44,7 @@ _NONE = np.zeros((3, 0))
 _INFO_LAYOUT = np.array([[0, 1, 3], [1, 2, 4], [3, 4, 5]])  # Λ from its six distinct sums
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # built on every scan: not frozen, which costs 0.2 µs a field
 class Displacement:
     delta: NDArray[np.float64]  # (Δx, Δy, Δθ) in the map frame
     cov: NDArray[np.float64]  # 3×3
@@ -66,12 +76,49 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
                           max_observable_sigma: float) -> Displacement:
     """Weighted least squares of Δ over all matches; ``beta`` is the reference normal per match."""
     if len(matches) == 0:
-        z = np.zeros((3, 0))
-        return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
-                            z, np.eye(3), 0.0, 0)
-    terms, info, b, full, delta, cov, chi2_total = _solve(
-        np.ascontiguousarray(matches.cov), np.ascontiguousarray(matches.residual),
-        np.cos(beta), np.sin(beta), max_observable_sigma)
+        return _nothing_matched()
+    solved = _solve(np.ascontiguousarray(matches.cov), np.ascontiguousarray(matches.residual),
+                    np.ascontiguousarray(beta, dtype=float), max_observable_sigma)
+    return _displacement(matches, beta, max_observable_sigma, *solved)
+
+
+def match_and_solve(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
+                    config: HoughConfig) -> tuple[Matches, Displacement]:
+    """:func:`houghloc.matching.associate`, then :func:`estimate_displacement` of its matches,
+    as one compiled call: a scan's association and its solution cross into Python once."""
+    if len(lines) == 0 or len(refs) == 0:
+        return associate(lines, refs, pose, pose_cov, config), _nothing_matched()
+    li, rj, residual, cov, d2, n_cand, ambiguous, claims, beta, solved = _match_and_solve(
+        config.max_observable_sigma, lines.theta, lines.rho, np.ascontiguousarray(lines.cov),
+        lines.s0, lines.s1, refs.theta, refs.rho, refs.beta, refs.seg_ref, refs.seg_s0,
+        refs.seg_s1, np.ascontiguousarray(pose, dtype=float),
+        np.ascontiguousarray(pose_cov, dtype=float), match_settings(config))
+    matches = matches_found(lines, None, li, rj, residual, cov, d2, n_cand, ambiguous, claims)
+    if len(matches) == 0:
+        return matches, _nothing_matched()
+    return matches, _displacement(matches, beta, config.max_observable_sigma, *solved)
+
+
+@njit
+def _match_and_solve(max_observable_sigma: float, *association: Any) -> tuple:
+    """:func:`houghloc.matching.associate_kernel` of ``association`` (its arguments), then
+    :func:`_solve` on the matches (with each match's reference normal β)."""
+    li, rj, residual, cov, d2, n_cand, ambiguous, claims = associate_kernel(*association)
+    beta = association[7][rj]  # each match's reference normal: associate_kernel's β, 8th
+    return (li, rj, residual, cov, d2, n_cand, ambiguous, claims, beta,
+            _solve(cov, residual, beta, max_observable_sigma))
+
+
+def _nothing_matched() -> Displacement:
+    return Displacement(np.zeros(3), np.eye(3) * UNOBSERVED_VARIANCE, np.zeros((3, 3)), 0,
+                        np.zeros((3, 0)), np.eye(3), 0.0, 0)
+
+
+def _displacement(matches: Matches, beta: NDArray, max_observable_sigma: float, terms: NDArray,
+                  info: NDArray, b: NDArray, full: bool, delta: NDArray, cov: NDArray,
+                  chi2_total: float) -> Displacement:
+    """The displacement from :func:`_solve`'s sums and, when the whole pose is observable, its
+    solution; otherwise the solution confined to the observable directions."""
     if full:  # the usual case: the whole pose is observed
         return Displacement(delta, cov, info, 3, _FULL, _NONE, chi2_total,
                             max(2 * len(matches) - 3, 0), matches, beta)
@@ -101,11 +148,11 @@ def estimate_displacement(matches: Matches, beta: NDArray[np.float64],
 
 
 @njit
-def _solve(cov: NDArray, residual: NDArray, nx: NDArray, ny: NDArray,
-           max_observable_sigma: float) -> tuple:
+def _solve(cov: NDArray, residual: NDArray, beta: NDArray, max_observable_sigma: float
+           ) -> tuple:
     """The normal equations' sums, Λ, b and, when the whole pose is observable, its solution
     (:func:`_normal_equations`, :func:`_full_rank_solution`), in one call."""
-    terms = _normal_equations(cov, residual, nx, ny)
+    terms = _normal_equations(cov, residual, np.cos(beta), np.sin(beta))
     info = np.empty((3, 3))
     for i in range(3):
         for j in range(3):

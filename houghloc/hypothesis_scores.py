@@ -12,11 +12,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from houghloc.displacement import Displacement, estimate_displacement
+from houghloc.displacement import Displacement, match_and_solve
 from houghloc.geometry import wrap_angle
 from houghloc.jit import njit
 from houghloc.map_lookup import WallDistance
-from houghloc.matching import Matches, associate
+from houghloc.matching import Matches
 from houghloc.pose_hypotheses import row_chunks
 from houghloc.refine import Lines
 from houghloc.segment_map import References, SegmentMap
@@ -138,7 +138,7 @@ def refine_hypothesis(pose: NDArray, lines: Lines, max_range: float, pts_s: NDAr
     rescored.
 
     The hypothesis is treated as a guess with a tight prior (``refine_sigma_*``): the Hough-domain
-    gates of :func:`associate` then only admit the lines that this pose explains.
+    gates of :func:`houghloc.matching.associate` then only admit the lines that this pose explains.
     """
     pose = np.array([pose[0], pose[1], float(wrap_angle(pose[2]))])
     # refine_iterations corrections, then one more (cheap) solve at the last linearisation
@@ -163,11 +163,10 @@ def matched_at(pose: NDArray, lines: Lines, map: SegmentMap, kinds: tuple[str, .
     hc = config.hough
     prior = np.diag([config.refine_sigma_xy**2] * 2 + [config.refine_sigma_theta**2])
     refs = map.references(pose, max_range, kinds, hc.visibility_rays)
-    matches = associate(lines, refs, pose, prior, hc)
+    matches, displacement = match_and_solve(lines, refs, pose, prior, hc)
     if len(matches) == 0:
         return None
-    return refs, matches, estimate_displacement(matches, refs.beta[matches.ref],
-                                                hc.max_observable_sigma)
+    return refs, matches, displacement
 
 
 def scored_hypothesis(pose: NDArray, cov: NDArray, refs: References, matches: Matches,

@@ -17,14 +17,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from houghloc.config import HoughConfig
-from houghloc.displacement import UNOBSERVED_VARIANCE, estimate_displacement
+from houghloc.displacement import UNOBSERVED_VARIANCE, estimate_displacement, match_and_solve
 from houghloc.geometry import TWO_PI, inverse_3x3, wrap_scalar
 from houghloc.jit import njit
-from houghloc.matching import Matches, associate, gate_threshold, reassociate
-from houghloc.peaks import find_peaks
-from houghloc.refine import Lines, refine_lines
+from houghloc.matching import Matches, gate_threshold, reassociate
+from houghloc.peaks import _peaks_kernel, find_peaks
+from houghloc.refine import Lines, _refine_kernel
 from houghloc.segment_map import References, SegmentMap
-from houghloc.transform import HoughGrid, make_grid, vote
+from houghloc.transform import HoughGrid, _vote_kernel, make_grid, vote
 
 _DEFAULT_CONFIG = HoughConfig()
 _EYE3 = np.eye(3)
@@ -55,7 +55,7 @@ class ScanCorrection:
     reason: str
     n_points: int = 0
     grid: HoughGrid | None = None
-    accumulator: NDArray[np.int64] | None = None
+    accumulator: NDArray[np.int32] | None = None
     lines: Lines | None = None
     references: References | None = None
     matched_map_lines: NDArray[np.intp] = field(default_factory=lambda: np.empty(0, np.intp))
@@ -79,7 +79,7 @@ def clean_points(points_xy: ArrayLike) -> tuple[NDArray[np.float64], int]:
         return np.empty((0, 2)), 0
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(f"points must be an N×2 array of (x, y), got shape {pts.shape}")
-    if np.isfinite(pts.sum()):  # the usual case, one pass (NaN and ±inf make the sum non-finite)
+    if math.isfinite(pts.sum()):  # the usual case, one pass (NaN and ±inf make the sum non-finite)
         return pts, 0
     finite = np.isfinite(pts).all(axis=1)
     return pts[finite], int((~finite).sum())
@@ -101,24 +101,65 @@ def _max_norm_sq(points: NDArray[np.float64]) -> float:
 
 
 def observe_lines(points: NDArray[np.float64], config: HoughConfig
-                  ) -> tuple[HoughGrid, NDArray[np.int64], Lines]:
+                  ) -> tuple[HoughGrid, NDArray[np.int32], Lines]:
     """Steps 2–3 and the refinement: vote, find peaks, refine them to lines (strongest first)."""
     grid = make_grid(config)
-    acc = vote(points, grid)
-    peaks = find_peaks(acc, len(points), config, limit=2 * config.max_peaks)
-    theta0, rho0 = grid.cell_center(peaks.i_theta, peaks.i_rho)
-    if config.refine:
-        weights = None
-        if config.range_sigma_growth > 0:  # σᵢ = σ₀ + k·dᵢ²: weight 1/σᵢ², relative (mean 1)
-            sigma = config.range_sigma_base + config.range_sigma_growth * (points**2).sum(axis=1)
+    if config.refine:  # the usual case: the three steps in one compiled call
+        pts = np.ascontiguousarray(points, dtype=float)
+        unit = config.range_sigma_growth <= 0
+        if unit:
+            weights = _NO_WEIGHTS
+        else:  # σᵢ = σ₀ + k·dᵢ²: weight 1/σᵢ², relative (mean 1)
+            sigma = config.range_sigma_base + config.range_sigma_growth * (pts**2).sum(axis=1)
             weights = 1.0 / sigma**2
             weights *= len(weights) / weights.sum()
-        lines = refine_lines(points, theta0, rho0, config, weights)
+        acc, *found = _observe_kernel(
+            pts, weights, unit, grid.half_trig32, grid.signed_cells, grid.margin_cells,
+            grid.n_rho, grid.theta_step, grid.rho_step, grid.rho_min,
+            max(config.peak_min_votes, math.ceil(config.peak_fraction * len(pts))),
+            config.nms_theta_cells, config.nms_rho_cells, 2 * config.max_peaks,
+            config.refine_max_band or config.rho_step, config.refine_iterations,
+            config.refine_band_sigmas, config.refine_min_band, config.theta_step, config.rho_step,
+            config.piece_gap, config.min_piece_points, config.min_line_length,
+            config.max_line_sigma, config.point_sigma_floor, config.line_theta_floor,
+            config.line_rho_floor)
+        lines = Lines(*found)
     else:
+        acc = vote(points, grid)
+        peaks = find_peaks(acc, len(points), config, limit=2 * config.max_peaks)
+        theta0, rho0 = grid.cell_center(peaks.i_theta, peaks.i_rho)
         lines = _grid_lines(points, theta0, rho0, peaks.votes, grid)
     if len(lines) > config.max_peaks:
         lines = lines.subset(np.argsort(-lines.n, kind="stable")[: config.max_peaks])
     return grid, acc, lines
+
+
+_NO_WEIGHTS = np.empty(0)
+
+
+@njit
+def _observe_kernel(points: NDArray, weights: NDArray, unit: bool, half_trig32: NDArray,
+                    signed_cells: int, margin_cells: int, n_rho: int, cell_theta: float,
+                    cell_rho: float, rho_min: float, threshold: int, nms_theta: int,
+                    nms_rho: int, limit: int, max_band: float, iterations: int,
+                    band_sigmas: float, min_band: float, theta_step: float, rho_step: float,
+                    piece_gap: float, min_piece_points: int, min_line_length: float,
+                    max_line_sigma: float, point_sigma_floor: float, theta_floor: float,
+                    rho_floor: float) -> tuple:
+    """:func:`vote`, :func:`find_peaks`, the peak cells' centres (the grid's cells are
+    ``cell_theta`` × ``cell_rho``) and :func:`houghloc.refine.refine_lines` as one compiled call,
+    through the same kernels: a scan's arrays cross into Python once."""
+    acc = np.empty((2 * half_trig32.shape[1], n_rho), np.int32)
+    _vote_kernel(points, half_trig32, signed_cells, margin_cells, acc)
+    i_theta, i_rho, _ = _peaks_kernel(acc, threshold, nms_theta, nms_rho, limit)
+    theta0 = i_theta * cell_theta  # HoughGrid.cell_center
+    rho0 = rho_min + (i_rho + 0.5) * cell_rho
+    w = np.ones(points.shape[0]) if unit else weights
+    theta, rho, cov, n, sigma, s0, s1, members = _refine_kernel(
+        points, w, unit, theta0, rho0, max_band, iterations, band_sigmas, min_band, theta_step,
+        rho_step, piece_gap, min_piece_points, min_line_length, max_line_sigma,
+        point_sigma_floor, theta_floor, rho_floor)
+    return acc, theta, rho, cov, n, sigma, s0, s1, members
 
 
 def localize_scan(
@@ -127,7 +168,7 @@ def localize_scan(
     guess: ArrayLike,
     config: HoughConfig = _DEFAULT_CONFIG,
     pose_cov: ArrayLike | None = None,
-    observed: tuple[HoughGrid, NDArray[np.int64], Lines] | None = None,
+    observed: tuple[HoughGrid, NDArray[np.int32], Lines] | None = None,
 ) -> ScanCorrection:
     """Correct ``guess`` (x, y, θ) with the robot-frame points of one scan (docs/method.md §1–5).
 
@@ -138,10 +179,7 @@ def localize_scan(
     Bad input never raises on content: empty, non-finite or structureless scans give an empty
     result with a reason. A wrongly shaped array or a non-finite guess raises ``ValueError``.
     """
-    guess = np.asarray(guess, dtype=float).reshape(-1)
-    if guess.shape != (3,) or not np.isfinite(guess).all():
-        raise ValueError(f"guess must be three finite numbers (x, y, θ), got {guess!r}")
-    guess = np.array([guess[0], guess[1], wrap_scalar(guess[2])])
+    guess = _checked_guess(guess)
     points, n_dropped = clean_points(points_xy)
     dropped = f" ({n_dropped} non-finite dropped)" if n_dropped else ""
     if len(points) < config.peak_min_votes:
@@ -158,13 +196,14 @@ def localize_scan(
     if len(refs) == 0:
         return _empty(guess, "no map line within range of the guess", **stages)
 
-    prior = (np.asarray(pose_cov, dtype=float) if pose_cov is not None else
-             _default_prior(config.guess_sigma_xy, config.guess_sigma_theta))
-    if prior.shape != (3, 3) or not np.isfinite(prior).all():
-        raise ValueError("pose_cov must be a finite 3×3 matrix")
+    if pose_cov is None:
+        prior = _default_prior(config.guess_sigma_xy, config.guess_sigma_theta)
+    else:
+        prior = np.asarray(pose_cov, dtype=float)
+        if prior.shape != (3, 3) or not np.isfinite(prior).all():
+            raise ValueError("pose_cov must be a finite 3×3 matrix")
     base = np.zeros(3)  # the matches' residuals are relative to guess + base
-    matches = associate(lines, refs, guess, prior, config)
-    disp = estimate_displacement(matches, refs.beta[matches.ref], config.max_observable_sigma)
+    matches, disp = match_and_solve(lines, refs, guess, prior, config)
     offset = disp.delta
     for _ in range(config.match_iterations - 1):
         if disp.rank == 0 or len(matches.ambiguous_lines) == 0:
@@ -207,7 +246,7 @@ def localize_scan(
         doubts.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
     # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
     # directions, against the χ² gate (a filter will run the same test on its innovation).
-    step = np.array([offset[0], offset[1], wrap_scalar(offset[2])])
+    step = wrapped = _wrapped(offset)
     if disp.rank == 3:
         spread = inverse_3x3(prior + disp.cov)
     else:
@@ -220,10 +259,20 @@ def localize_scan(
         + ", ".join(_direction_name(v) for v in disp.unobservable.T)]
     ambiguous = bool(doubts) or (len(matches.ambiguous_lines) > 0 and not lenient)
     return ScanCorrection(
-        guess, pose, _wrapped(offset), disp.cov, disp.information, disp.rank, disp.observable,
+        guess, pose, wrapped, disp.cov, disp.information, disp.rank, disp.observable,
         disp.unobservable, matches, ambiguous, "; ".join(rank_note + doubts + notes),
         matched_map_lines=refs.line[matches.ref],
         references=refs, **{k: v for k, v in stages.items() if k != "references"})
+
+
+def _checked_guess(guess: ArrayLike) -> NDArray[np.float64]:
+    """(x, y, θ) as floats with θ wrapped, or ``ValueError``."""
+    values = np.asarray(guess, dtype=float).reshape(-1)
+    if values.shape == (3,):
+        x, y, theta = values.tolist()
+        if math.isfinite(x) and math.isfinite(y) and math.isfinite(theta):
+            return np.array([x, y, wrap_scalar(theta)])
+    raise ValueError(f"guess must be three finite numbers (x, y, θ), got {values!r}")
 
 
 def _flagged(guess: NDArray, reason: str, matches: Matches, stages: dict) -> ScanCorrection:

@@ -28,7 +28,7 @@ from houghloc.refine import Lines
 from houghloc.segment_map import References
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # built on every scan: not frozen, which costs 0.2 µs a field
 class Matches:
     """Accepted pairs and what was left out.
 
@@ -44,7 +44,9 @@ class Matches:
     d2: NDArray[np.float64]
     ambiguous_lines: NDArray[np.intp] = field(default_factory=lambda: np.empty(0, np.intp))
     reasons: tuple[str, ...] = ()
-    pairs: PairTable | None = None  # the K×L tables they were chosen from (for re-gating)
+    # the K×L table they were chosen from, when it was moved from the references' prediction (for
+    # re-gating); None: the lines against the references as predicted, recomputed when needed
+    pairs: PairTable | None = None
 
     def __len__(self) -> int:
         return len(self.line)
@@ -56,7 +58,7 @@ class Matches:
                        self.d2[keep], self.ambiguous_lines, self.reasons, self.pairs)
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # built on every scan: not frozen, which costs 0.2 µs a field
 class PairTable:
     """Every (line, reference) pair of one association: residuals and representation."""
 
@@ -83,9 +85,11 @@ def associate(lines: Lines, refs: References, pose: NDArray, pose_cov: NDArray,
     if len(lines) == 0 or len(refs) == 0:
         e = np.empty(0, np.intp)
         return Matches(e, e, np.empty((0, 2)), np.empty((0, 2, 2)), np.empty(0))
-    d_theta, d_rho, sign = _pairs(lines.theta, lines.rho, refs.theta, refs.rho)
-    table = PairTable(d_theta, d_rho, sign, np.cos(refs.beta), np.sin(refs.beta))
-    return _match(lines, refs, table, pose, pose_cov, config)
+    return matches_found(lines, None, *associate_kernel(
+        lines.theta, lines.rho, np.ascontiguousarray(lines.cov), lines.s0, lines.s1, refs.theta,
+        refs.rho, refs.beta, refs.seg_ref, refs.seg_s0, refs.seg_s1,
+        np.ascontiguousarray(pose, dtype=float), np.ascontiguousarray(pose_cov, dtype=float),
+        match_settings(config)))
 
 
 def reassociate(matches: Matches, lines: Lines, refs: References, pose: NDArray,
@@ -97,34 +101,64 @@ def reassociate(matches: Matches, lines: Lines, refs: References, pose: NDArray,
     References move linearly with the pose (θ_r − Δθ, ρ_r − n·Δt), so the residuals are updated
     rather than recomputed.
     """
-    table = matches.pairs
-    if table is None or len(lines) == 0:
+    if len(lines) == 0 or len(refs) == 0:
         return matches
+    table = matches.pairs if matches.pairs is not None else pair_table(lines, refs)
     cb, sb = table.cos_beta, table.sin_beta
     moved = PairTable(table.d_theta + offset[2], table.d_rho + (cb * offset[0] + sb * offset[1]),
                       table.sign, cb, sb)
     return _match(lines, refs, moved, pose, pose_cov, config)
 
 
+def pair_table(lines: Lines, refs: References) -> PairTable:
+    """Every (line, reference) pair's residuals and representation (:func:`_pairs`)."""
+    d_theta, d_rho, sign = _pairs(lines.theta, lines.rho, refs.theta, refs.rho)
+    return PairTable(d_theta, d_rho, sign, np.cos(refs.beta), np.sin(refs.beta))
+
+
 def _match(lines: Lines, refs: References, table: PairTable, pose: NDArray, pose_cov: NDArray,
            config: HoughConfig) -> Matches:
     """Gate, extent check and resolution of one pair table (:func:`_match_kernel`), with the
     reasons for what was left out."""
-    margin = -1.0 if config.decisive_d2_margin is None else config.decisive_d2_margin
-    li, rj, residual, cov, d2, n_cand, ambiguous, claims = _match_kernel(
+    return matches_found(lines, table, *_match_kernel(
         np.ascontiguousarray(lines.cov), lines.s0, lines.s1, table.d_theta, table.d_rho,
         table.sign, table.cos_beta, table.sin_beta, refs.seg_ref, refs.seg_s0, refs.seg_s1,
         np.ascontiguousarray(pose, dtype=float), np.ascontiguousarray(pose_cov, dtype=float),
-        gate_threshold(config.gate_probability), config.extent_margin,
-        config.min_extent_coverage, config.nearest_neighbour_only, margin, config.theta_step,
-        config.rho_step)
+        match_settings(config)))
+
+
+def match_settings(config: HoughConfig) -> tuple[float, float, float, bool, float, float, float]:
+    """The association's settings, in :func:`_match_kernel`'s order."""
+    margin = -1.0 if config.decisive_d2_margin is None else config.decisive_d2_margin
+    return (gate_threshold(config.gate_probability), config.extent_margin,
+            config.min_extent_coverage, config.nearest_neighbour_only, margin, config.theta_step,
+            config.rho_step)
+
+
+def matches_found(lines: Lines, table: PairTable | None, li: NDArray, rj: NDArray,
+                  residual: NDArray, cov: NDArray, d2: NDArray, n_cand: NDArray,
+                  ambiguous: NDArray, claims: NDArray) -> Matches:
+    """:func:`_match_kernel`'s result as matches, with the reasons for what was left out."""
     reasons: tuple[str, ...] = ()
     if len(ambiguous):  # the reasons, only when there is something to explain
+        theta, rho, count = lines.theta.tolist(), lines.rho.tolist(), n_cand.tolist()
         reasons = tuple(
-            [f"line θ={np.degrees(lines.theta[i]):.1f}° ρ={lines.rho[i]:.2f} m fits "
-             f"{int(n_cand[i])} map lines" for i in np.flatnonzero(n_cand >= 2)[:3]]
-            + [f"{int(c)} lines claim one map line" for c in claims])
+            [f"line θ={math.degrees(theta[i]):.1f}° ρ={rho[i]:.2f} m fits {count[i]} map lines"
+             for i in np.flatnonzero(n_cand >= 2)[:3].tolist()]
+            + [f"{c} lines claim one map line" for c in claims.tolist()])
     return Matches(li, rj, residual, cov, d2, ambiguous, reasons, table)
+
+
+@njit
+def associate_kernel(l_theta: NDArray, l_rho: NDArray, l_cov: NDArray, l_s0: NDArray,
+                     l_s1: NDArray, r_theta: NDArray, r_rho: NDArray, beta: NDArray,
+                     seg_ref: NDArray, seg_s0: NDArray, seg_s1: NDArray, pose: NDArray,
+                     pose_cov: NDArray, settings: tuple) -> tuple:
+    """:func:`_pairs` and the references' normals (the pair table), then :func:`_match_kernel`
+    on it, as one compiled call."""
+    d_theta, d_rho, sign = _pairs(l_theta, l_rho, r_theta, r_rho)
+    return _match_kernel(l_cov, l_s0, l_s1, d_theta, d_rho, sign, np.cos(beta), np.sin(beta),
+                         seg_ref, seg_s0, seg_s1, pose, pose_cov, settings)
 
 
 @njit
@@ -149,10 +183,8 @@ def _pairs(l_theta: NDArray, l_rho: NDArray, r_theta: NDArray, r_rho: NDArray
 def _match_kernel(l_cov: NDArray, l_s0: NDArray, l_s1: NDArray, d_theta: NDArray,
                   d_rho: NDArray, sign: NDArray, cos_beta: NDArray, sin_beta: NDArray,
                   seg_ref: NDArray, seg_s0: NDArray, seg_s1: NDArray, pose: NDArray,
-                  pose_cov: NDArray, gate: float, extent_margin: float, min_coverage: float,
-                  nearest_only: bool, decisive_margin: float, theta_step: float,
-                  rho_step: float) -> tuple:
-    """The association's three steps on a pair table.
+                  pose_cov: NDArray, settings: tuple) -> tuple:
+    """The association's three steps on a pair table, with :func:`match_settings`.
 
     1. χ²(2) gate: d² = rᵀ S⁻¹ r with S = J P Jᵀ + C, written out for 2×2 blocks: with
        J = [[0, 0, −1], [−nᵀ, 0]], J P Jᵀ = [[P_θθ, nᵀP_tθ], [nᵀP_tθ, nᵀP_tt n]].
@@ -174,6 +206,8 @@ def _match_kernel(l_cov: NDArray, l_s0: NDArray, l_s1: NDArray, d_theta: NDArray
     each line's candidate count, the lines left ambiguous, and the number of lines in each
     conflicting claim.
     """
+    gate, extent_margin, min_coverage, nearest_only, decisive_margin, theta_step, rho_step = (
+        settings)
     k, n_ref = d_theta.shape
     cb, sb = cos_beta, sin_beta
     candidate = np.zeros((k, n_ref), np.bool_)

@@ -12,7 +12,7 @@ from houghloc.config import HoughConfig
 from houghloc.jit import njit
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)  # built on every scan: not frozen, which costs 0.2 µs a field
 class Peaks:
     """Peak cells, strongest first."""
 
@@ -40,7 +40,7 @@ def find_peaks(acc: NDArray[np.integer], n_points: int, config: HoughConfig,
 
 
 @njit
-def _peaks_kernel(acc: NDArray[np.int64], threshold: int, w: int, h: int, limit: int
+def _peaks_kernel(acc: NDArray[np.integer], threshold: int, w: int, h: int, limit: int
                   ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.int64]]:
     n_theta, n_rho = acc.shape
     i_theta = np.empty(64, np.intp)

@@ -70,7 +70,7 @@ def make_grid(config: HoughConfig) -> HoughGrid:
     return _grid(config.theta_step, config.rho_step, config.rho_max, config.rho_margin_cells)
 
 
-def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int64]:
+def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int32]:
     """Accumulate HT(θ, ρ): each point votes once per θ row, in the cell where its ρ falls.
 
     The signed ρ of every (point, θ < π) is computed in float32 (it resolves ρ to a micrometre
@@ -81,7 +81,7 @@ def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int64]:
     at −ρ, since (θ + π, ρ) ≡ (θ, −ρ); a vote within the margin of ρ = 0 counts in both.
     Returns the accumulator, ``n_theta × n_rho``.
     """
-    acc = np.empty((grid.n_theta, grid.n_rho), dtype=np.int64)
+    acc = np.empty((grid.n_theta, grid.n_rho), dtype=np.int32)
     _vote_kernel(np.ascontiguousarray(points, dtype=float), grid.half_trig32, grid.signed_cells,
                  grid.margin_cells, acc)
     return acc
@@ -89,23 +89,29 @@ def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int64]:
 
 @njit
 def _vote_kernel(points: NDArray[np.float64], half_trig32: NDArray[np.float32], u: int, m: int,
-                 acc: NDArray[np.int64]) -> None:
+                 acc: NDArray[np.int32]) -> None:
     half, n_rho, n = half_trig32.shape[1], acc.shape[1], points.shape[0]
     shift, top = np.float32(u + 1), np.float32(2 * u + 1)  # signed cell c − (u + 1) holds ρ/δρ
     xs, ys = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
-    cells = np.empty(n, np.int32)
-    signed = np.empty(2 * u + 2, np.int64)  # one signed row, a guard cell at each end
+    # unsigned cells and fixed views into the signed row: indices the compiler knows are not
+    # negative need no wrap-around check, and the copies below vectorise
+    cells = np.empty(n, np.uint32)
+    signed = np.empty(2 * u + 2, np.int32)  # one signed row, a guard cell at each end
+    # cell j of row θ holds ρ ∈ [(j − m)δ, (j − m + 1)δ): the signed cell j − m; in row θ + π
+    # the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard
+    forward = signed[u + 1 - m: u + 1 - m + n_rho]
+    backward = signed[u + m + 1 - n_rho: u + m + 1]  # read from its end
     for i in range(half):
         c, s = half_trig32[0, i], half_trig32[1, i]
         for k in range(n):  # the cells first (vectorised), then the counts
             q = fma(ys[k], s, xs[k] * c) + shift
-            cells[k] = np.int32(min(max(q, np.float32(0.0)), top))
+            cells[k] = np.uint32(min(max(q, np.float32(0.0)), top))
         signed[:] = 0
         for k in range(n):
             signed[cells[k]] += 1
-        # cell j of row θ holds ρ ∈ [(j − m)δ, (j − m + 1)δ): the signed cell j − m; in row θ + π
-        # the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard
-        row, mirrored = acc[i], acc[i + half]
+        row = acc[i]  # two loops, not one: each is then a vectorised copy
         for j in range(n_rho):
-            row[j] = signed[u + 1 - m + j]
-            mirrored[j] = signed[u + m - j]
+            row[j] = forward[j]
+        mirrored = acc[i + half]
+        for j in range(n_rho):
+            mirrored[j] = backward[n_rho - 1 - j]

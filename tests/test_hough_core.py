@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from houghloc import HoughConfig, observe_lines
 from houghloc.peaks import find_peaks
-from houghloc.refine import refine_lines
+from houghloc.refine import _by_line_then_along, _distinct, refine_lines
 from houghloc.transform import make_grid, vote
 
 CFG = HoughConfig()
@@ -149,3 +149,53 @@ def test_clutter_alone_gives_no_line() -> None:
     pts = np.random.default_rng(5).uniform(-6, 6, (400, 2))
     _, _, lines = observe_lines(pts, CFG)
     assert len(lines) <= 1  # 400 random points: at most a chance alignment, never a wall
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**16), k=st.integers(1, 6), n=st.integers(0, 300),
+       arrival=st.sampled_from(["scan", "reversed", "shuffled", "ties"]))
+def test_points_are_ordered_by_line_then_along_it(seed, k, n, arrival) -> None:
+    """The order that splits lines into pieces sorts by line, then along the line, however the
+    points arrive: in a scan's order give or take the noise, reversed, shuffled, or with ties."""
+    rng = np.random.default_rng(seed)
+    lab = np.repeat(rng.integers(0, k, n // 8 + 1), 8)[:n].astype(np.intp)  # runs, as in a scan
+    along = np.linspace(-5.0, 5.0, n) + rng.normal(0.0, 0.02, n)
+    if arrival == "reversed":
+        along = along[::-1].copy()
+    elif arrival == "shuffled":
+        along = rng.permutation(along)
+    elif arrival == "ties":
+        along = np.round(along, 0)
+    order = _by_line_then_along(lab, along, k)
+    np.testing.assert_array_equal(np.sort(order), np.arange(n))
+    keys = np.column_stack((lab[order], along[order]))
+    later = (np.diff(keys[:, 0]) > 0) | ((np.diff(keys[:, 0]) == 0) & (np.diff(keys[:, 1]) >= 0))
+    assert later.all()
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**16), k=st.integers(1, 32), n=st.integers(1, 200),
+       plateau=st.booleans())
+def test_distinct_peaks_follow_their_definition(seed, k, n, plateau) -> None:
+    """A peak is dropped when a stronger one shares more than half of the smaller's inliers or
+    lies within half a cell of it: the definition, with every pair's shared count tabulated."""
+    rng = np.random.default_rng(seed)
+    inliers = rng.random((k, n)) < rng.uniform(0.05, 0.9)
+    theta, rho = rng.uniform(0.0, 2 * math.pi, k), rng.uniform(0.0, 5.0, k)
+    if plateau:  # one wall's spread of peaks: alike inliers, nearby cells
+        inliers = inliers[:1] ^ (rng.random((k, n)) < rng.uniform(0.0, 0.5))
+        theta, rho = theta[0] + rng.normal(0.0, 0.03, k), rho[0] + rng.normal(0.0, 0.05, k)
+    weight = inliers.sum(axis=1).astype(float)
+    shared = inliers.astype(int) @ inliers.T.astype(int)
+    expected = weight > 0
+    for i in range(k):
+        for j in range(k):
+            if weight[j] > weight[i] or (weight[j] == weight[i] and j < i):
+                near = (math.cos(theta[i] - theta[j]) > math.cos(0.5 * CFG.theta_step)
+                        and abs(rho[i] - rho[j]) < 0.5 * CFG.rho_step)
+                if near or shared[i, j] > 0.5 * min(weight[i], weight[j]):
+                    expected[i] = False
+                    break
+    kept = _distinct(np.ascontiguousarray(inliers), weight, theta, rho, CFG.theta_step,
+                     CFG.rho_step)
+    np.testing.assert_array_equal(kept, expected)

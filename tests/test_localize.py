@@ -19,6 +19,7 @@ from fusion.sim import (
     random_free_pose,
 )
 from houghloc import HoughConfig, SegmentMap, localize_scan, observe_lines
+from houghloc.displacement import estimate_displacement, match_and_solve
 from houghloc.geometry import ranges_to_points, wrap_angle
 from houghloc.matching import associate, reassociate
 from tests.conftest import MAPS, REPO
@@ -245,3 +246,29 @@ def test_second_matching_pass_equals_a_fresh_association_at_the_moved_pose(
     np.testing.assert_array_equal(refs.line[again.ref], fresh_refs.line[fresh.ref])
     np.testing.assert_allclose(again.residual, fresh.residual, atol=1e-9)
     np.testing.assert_allclose(again.d2, fresh.d2, rtol=1e-7, atol=1e-9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=st.floats(-3.5, 3.5), y=st.floats(-1.8, 1.8), theta=st.floats(-math.pi, math.pi),
+       seed=st.integers(0, 2**16))
+def test_one_call_association_and_solution_equal_the_two_steps(robocup, x, y, theta,
+                                                                 seed) -> None:
+    """`match_and_solve` is `associate` then `estimate_displacement`, bit for bit."""
+    rng = np.random.default_rng(seed)
+    true = np.array([x, y, theta])
+    scan = laser_scan(robocup, true, rng, LASER)
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0)
+    _, _, lines = observe_lines(points, HoughConfig())
+    guess = true + rng.normal(0.0, [0.1, 0.1, 0.05])
+    cfg, cov = HoughConfig(), np.diag([0.1**2, 0.1**2, math.radians(4.0) ** 2])
+    refs = robocup.references(guess, 12.0)
+    matches, disp = match_and_solve(lines, refs, guess, cov, cfg)
+    apart = associate(lines, refs, guess, cov, cfg)
+    assume(len(apart) > 0)
+    alone = estimate_displacement(apart, refs.beta[apart.ref], cfg.max_observable_sigma)
+    for name in ("line", "ref", "residual", "cov", "d2", "ambiguous_lines"):
+        np.testing.assert_array_equal(getattr(matches, name), getattr(apart, name))
+    assert matches.reasons == apart.reasons
+    for name in ("delta", "cov", "information", "observable", "unobservable"):
+        np.testing.assert_array_equal(getattr(disp, name), getattr(alone, name))
+    assert (disp.rank, disp.chi2, disp.dof) == (alone.rank, alone.chi2, alone.dof)
