@@ -95,12 +95,25 @@ def transform_points(pose: ArrayLike, points: NDArray[np.float64]) -> NDArray[np
 def ranges_to_points(
     ranges: ArrayLike, angles: ArrayLike, max_range: float = np.inf, min_range: float = 0.0
 ) -> NDArray[np.float64]:
-    """Polar beams to sensor-frame points, dropping non-finite, out-of-range and no-return beams."""
-    r = np.asarray(ranges, dtype=float)
-    a = np.asarray(angles, dtype=float)
-    keep = np.isfinite(r) & np.isfinite(a) & (r > min_range) & (r < max_range)
-    r, a = r[keep], a[keep]
-    return np.column_stack((r * np.cos(a), r * np.sin(a)))
+    """Polar beams to sensor-frame points, dropping non-finite, out-of-range and no-return beams
+    (those with min_range < r < max_range are kept)."""
+    r = np.ascontiguousarray(ranges, dtype=float).reshape(-1)
+    a = np.ascontiguousarray(angles, dtype=float).reshape(-1)
+    if r.shape != a.shape:
+        raise ValueError(f"{len(r)} ranges but {len(a)} beam angles")
+    return _beams_to_points(r, a, float(max_range), float(min_range))
+
+
+@njit
+def _beams_to_points(r: NDArray[np.float64], a: NDArray[np.float64], max_range: float,
+                     min_range: float) -> NDArray[np.float64]:
+    out = np.empty((len(r), 2))
+    n = 0
+    for i in range(len(r)):
+        if math.isfinite(r[i]) and math.isfinite(a[i]) and min_range < r[i] < max_range:
+            out[n, 0], out[n, 1] = r[i] * math.cos(a[i]), r[i] * math.sin(a[i])
+            n += 1
+    return out[:n]
 
 
 @njit

@@ -272,3 +272,25 @@ def test_one_call_association_and_solution_equal_the_two_steps(robocup, x, y, th
     for name in ("delta", "cov", "information", "observable", "unobservable"):
         np.testing.assert_array_equal(getattr(disp, name), getattr(alone, name))
     assert (disp.rank, disp.chi2, disp.dof) == (alone.rank, alone.chi2, alone.dof)
+
+
+@settings(max_examples=100, deadline=None)
+@given(seed=st.integers(0, 2**16), n=st.integers(0, 400), max_range=st.floats(1.0, 40.0),
+       min_range=st.floats(0.0, 1.0))
+def test_beams_become_the_points_of_their_definition(seed, n, max_range, min_range) -> None:
+    """Kept: finite beams with min_range < r < max_range, at (r cos a, r sin a), in order."""
+    rng = np.random.default_rng(seed)
+    ranges, angles = rng.uniform(-1.0, 45.0, n), rng.uniform(-7.0, 7.0, n)
+    ranges[rng.random(n) < 0.05], ranges[rng.random(n) < 0.05] = np.nan, np.inf
+    angles[rng.random(n) < 0.02] = np.nan
+    keep = (np.isfinite(ranges) & np.isfinite(angles) & (ranges > min_range)
+            & (ranges < max_range))
+    r, a = ranges[keep], angles[keep]
+    expected = np.column_stack((r * np.cos(a), r * np.sin(a)))
+    np.testing.assert_array_equal(ranges_to_points(ranges, angles, max_range, min_range),
+                                  expected)
+
+
+def test_beams_and_angles_of_different_lengths_are_refused() -> None:
+    with pytest.raises(ValueError, match="3 ranges but 2 beam angles"):
+        ranges_to_points([1.0, 2.0, 3.0], [0.0, 0.1])
