@@ -388,14 +388,18 @@ def test_kidnap_twenty_seeds():
 
 @pytest.mark.slow
 def test_kidnap_fresh_seeds():
-    """The office kidnap (3 m, 35°) on eighty seeds drawn anew on every run: recovered within
-    5 s in at least 95 % (76). Over 400 seeds (2000-2399) 395 were, so this fails on about
-    0.3 % of runs (forty seeds and 38 would fail on 1.4 %, and tell a 90 % rate from 95 % less
-    often). The seeds are in the message, to replay a failure."""
-    seeds = [int(s) for s in np.random.default_rng().integers(0, 2**31, 80)]
+    """The office kidnap (3 m, 35°) on two hundred seeds drawn anew on every run: recovered
+    within 5 s in at least 95 % (190). Over 720 seeds (2000-2399 and 320 drawn at random) 709
+    were, 98.5 %: at that rate this fails on about 0.03 % of runs, and at a true 97 % on about
+    4 %, so a slip of the rate is caught before it is large. The unrecovered seeds are listed
+    in the message, to replay a failure with ``kidnap_trial(seed)``."""
+    seeds = [int(s) for s in np.random.default_rng().integers(0, 2**31, 200)]
     trials = {seed: kidnap_trial(seed)[0] for seed in seeds}
-    recovered = [seed for seed, r in trials.items() if r is not None and r <= 5.0]
-    assert len(recovered) >= 76, trials
+    missed = {seed: r for seed, r in trials.items() if r is None or r > 5.0}
+    assert len(missed) <= 10, (
+        f"{len(missed)} of {len(seeds)} kidnaps not recovered within 5 s "
+        f"(seed: recovery time, None if never): "
+        + ", ".join(f"{seed}: {r}" for seed, r in missed.items()))
 
 
 def global_start_trial(seed: int, manager_out: list | None = None,
