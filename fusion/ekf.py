@@ -16,7 +16,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.status import ScanStatus
-from houghloc.geometry import Pose, compose, positive_definite, wrap_angle
+from houghloc.geometry import Pose, compose, positive_definite, wrap_scalar
 from houghloc.matching import gate_threshold
 
 _FULL_BASIS = np.eye(3)
@@ -115,7 +115,7 @@ class PoseEKF(ExtendedKalmanFilter):
         r = np.asarray(r, dtype=float)
         h = (_FULL_BASIS if basis is None else basis).T
         d = np.asarray(z, dtype=float) - self.x
-        d[2] = wrap_angle(d[2])
+        d[2] = wrap_scalar(d[2])
         y = h @ d
         prior_x, prior_p = self.x, self.P  # filterpy assigns new arrays: these stay the prior
         try:
@@ -136,6 +136,6 @@ class PoseEKF(ExtendedKalmanFilter):
         if not nis <= self.gates[dof]:
             self.x, self.P = prior_x, prior_p
             return UpdateOutcome(False, nis, dof, y, status=ScanStatus.REJECTED)
-        self.x[2] = wrap_angle(self.x[2])
+        self.x[2] = wrap_scalar(self.x[2])
         self.P = symmetric_pd(self.P)
         return UpdateOutcome(True, nis, dof, y)

@@ -31,7 +31,7 @@ from fusion.tracker import PoseTracker
 from fusion.visualize import Logger, NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points
-from houghloc.jit import one_blas_thread, warm_up
+from houghloc.jit import warm_up
 from houghloc.localize import clean_points
 
 log = logging.getLogger(__name__)
@@ -236,7 +236,6 @@ class Localizer:
         points = ranges_to_points(ranges, angles, min(cfg.max_range, max_range), cfg.min_range)
         return self.on_points(t, points, sensor)
 
-    @one_blas_thread
     def on_points(self, t: float, points: ArrayLike, sensor: str = "camera") -> Estimate:
         """Points in the sensor frame taken at time ``t`` (possibly in the past): fuse them.
 

@@ -55,6 +55,7 @@ log = logging.getLogger(__name__)
 
 _ZERO3 = np.zeros(3)
 _ZERO33 = np.zeros((3, 3))
+_EYES = {k: np.eye(k) for k in (1, 2, 3)}
 _TRIM_BATCH = 8  # nodes added between two trims
 
 
@@ -165,9 +166,9 @@ class PoseTracker:
         """
         if not self._nodes:
             return self._x.copy(), self._p.copy()
-        if not math.isfinite(t) or t < self._nodes[self._oldest()].t:
+        j = self._index_at(t)
+        if j is None:
             return None
-        j = bisect_right(self._nodes, t, key=_node_time) - 1
         node = self._estimate(j)
         assert node.x is not None and node.p is not None  # _estimate computes them
         if j == len(self._nodes) - 1 or t == node.t:
@@ -181,11 +182,9 @@ class PoseTracker:
     def odometry_at(self, t: float) -> NDArray[np.float64] | None:
         """The odometry pose (its own frame) at time t, interpolated inside the history; the
         newest reading for later times; None before any odometry or before the history."""
-        if not self._nodes:
+        j = self._index_at(t) if self._nodes else None
+        if j is None:
             return None
-        if not math.isfinite(t) or t < self._nodes[self._oldest()].t:
-            return None
-        j = bisect_right(self._nodes, t, key=_node_time) - 1
         node = self._nodes[j]
         if j == len(self._nodes) - 1 or t == node.t:
             return node.odom.copy()
@@ -470,6 +469,16 @@ class PoseTracker:
                 start = i
         return nodes[j]
 
+    def _index_at(self, t: float) -> int | None:
+        """Index of the last node at or before t (the newest for later times); None when t is
+        not finite or older than the history. The nodes must not be empty."""
+        nodes = self._nodes
+        if nodes[-1].t <= t < math.inf:  # the usual case, a scan after the newest odometry
+            return len(nodes) - 1
+        if not math.isfinite(t) or t < nodes[self._oldest()].t:
+            return None
+        return bisect_right(nodes, t, key=_node_time) - 1
+
     def _oldest(self) -> int:
         """Index of the oldest node of the history: the last at or before ``history_seconds``
         before the newest node (older ones wait for trimming, but no longer count)."""
@@ -513,7 +522,8 @@ class PoseTracker:
     ) -> _Measurement | None:
         z = np.array(z, dtype=float).reshape(3)
         r = np.array(r, dtype=float).reshape(3, 3)
-        if not (math.isfinite(t) and np.isfinite(z).all() and np.isfinite(r).all()):
+        if not (math.isfinite(t) and all(map(math.isfinite, z.tolist()))
+                and np.isfinite(r).all()):
             self._invalid(f"non-finite pose measurement at t={t}")
             return None
         if basis is not None:
@@ -523,7 +533,7 @@ class PoseTracker:
             k = basis.shape[1] if basis.ndim == 2 else 0
             if basis.shape[0] != 3 or not 1 <= k <= 3:
                 raise ValueError(f"basis must be 3×k with k in 1..3, got shape {basis.shape}")
-            if np.abs(basis.T @ basis - np.eye(k)).max() > 1e-6:
+            if abs(basis.T @ basis - _EYES[k]).max() > 1e-6:
                 raise ValueError("basis columns must be orthonormal")
         return _Measurement(z, r, basis)
 

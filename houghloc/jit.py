@@ -54,12 +54,14 @@ _blas_libraries: list[Any] | None = None  # threadpoolctl's controllers of the l
 def one_blas_thread(function: Callable[P, R]) -> Callable[P, R]:
     """Run ``function`` with NumPy's BLAS on one thread (threadpoolctl).
 
-    A scan's arrays are small: OpenBLAS's threads gain nothing on them, and spin on the other
-    cores while they wait (measured on 2 cores: a held-out Freiburg 079 replay spent 33 s of CPU
-    in 25 s of wall time with them, 23 s in 23 s without). Only the calls so decorated are
-    limited; the rest of the process keeps its threads. The libraries' controllers are found
-    once and set directly: threadpoolctl's ``limit`` context looks them up on every call, 30 µs
-    a scan against 12 µs."""
+    Global matching's arrays are small: OpenBLAS's threads gain nothing on them, and spin on
+    the other cores while they wait (measured on 2 cores: a held-out Freiburg 079 replay spent
+    53 s of CPU in 48 s of wall time with them, 42 s in 42 s without). The manager's global
+    steps (collecting views, the local re-search) are so decorated; a tracking scan does no
+    BLAS work that spawns threads, and pays nothing. Only the decorated calls are limited; the
+    rest of the process keeps its threads. The libraries' controllers are found once and set
+    directly: threadpoolctl's ``limit`` context looks them up on every call (30 µs against
+    12 µs)."""
 
     @functools.wraps(function)
     def limited(*args: P.args, **kwargs: P.kwargs) -> R:

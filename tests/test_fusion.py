@@ -404,12 +404,13 @@ def test_localizer_config_errors_name_the_file_and_the_field(content: str | None
         LocalizerConfig.from_yaml(path)
 
 
-def test_a_scan_is_fused_with_blas_on_one_thread_and_the_process_keeps_its_threads():
-    """Inside `Localizer.on_points` NumPy's BLAS has one thread (its idle threads would spin on
-    the other cores for a scan's small arrays); outside, the process's own setting is back."""
+def test_global_steps_run_with_blas_on_one_thread_and_the_process_keeps_its_threads():
+    """Inside the manager's global steps NumPy's BLAS has one thread (its idle threads would
+    spin on the other cores for global matching's small arrays); outside, the process's own
+    setting is back."""
     from threadpoolctl import threadpool_info
 
-    from fusion.localizer import Localizer
+    from fusion.ambiguity import AmbiguityManager
     from houghloc.jit import one_blas_thread
 
     def blas_threads() -> set[int]:
@@ -422,4 +423,5 @@ def test_a_scan_is_fused_with_blas_on_one_thread_and_the_process_keeps_its_threa
     one_blas_thread(lambda: inside.append(blas_threads()))()
     assert inside == [{1}]
     assert blas_threads() == before
-    assert getattr(Localizer.on_points, "__wrapped__", None) is not None  # on_points is limited
+    for step in (AmbiguityManager.collecting_step, AmbiguityManager.local_search):
+        assert getattr(step, "__wrapped__", None) is not None  # limited

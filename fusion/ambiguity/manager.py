@@ -56,6 +56,7 @@ from houghloc import (
 )
 from houghloc.geometry import compose, relative, wrap_scalar
 from houghloc.global_match import advance, finish, global_match_stages, prepare_map
+from houghloc.jit import one_blas_thread
 from houghloc.match_result import Stages
 
 
@@ -193,6 +194,7 @@ class AmbiguityManager:
             return False
         return self.fit.worse_than_usual(guess_fit, fix_fit)
 
+    @one_blas_thread  # global matching's arrays: see one_blas_thread
     def local_search(self, t: float, guess: NDArray, points: NDArray, fix: ScanCorrection,
                      kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig,
                      odom: NDArray | None) -> Decision:
@@ -262,6 +264,7 @@ class AmbiguityManager:
                        + [math.radians(self.config.reinit_sigma_theta_deg) ** 2])
 
     # ------------------------------------------------------------------ global mode
+    @one_blas_thread
     def collecting_step(self, t: float, odom: NDArray, points: NDArray,
                         kinds: tuple[str, ...] = ("wall",),
                         hough: HoughConfig | None = None) -> Decision:
