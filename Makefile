@@ -3,6 +3,9 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# The tests run in one process per core (pytest-xdist), at most four; a file's tests stay in one
+# process (--dist loadfile), so the ROS 2 node's tests, which share a DDS domain, never overlap.
+PARALLEL ?= -n auto --maxprocesses 4
 
 .PHONY: setup ros2 browser demo test test-all bench bench-real lint docs clean
 
@@ -36,10 +39,10 @@ demo: setup
 test: setup
 	-@$(MAKE) --no-print-directory ros2 || echo "make ros2 failed: the ROS 2 tests will skip"
 	-@$(MAKE) --no-print-directory browser
-	$(BIN)/python -m pytest -q -m "not slow"
+	$(BIN)/python -m pytest -q -m "not slow" $(PARALLEL) --dist loadfile
 
 test-all: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q $(PARALLEL) --dist loadfile
 
 bench: setup
 	$(BIN)/python -m benchmarks.run_all
