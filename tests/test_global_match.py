@@ -3,17 +3,22 @@ bad input."""
 
 from __future__ import annotations
 
+import math
+import struct
+
 import numpy as np
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from houghloc import SegmentMap, observe_lines
-from houghloc.geometry import relative, transform_points, wrap_angle
+from houghloc.geometry import TWO_PI, relative, transform_points, wrap_angle
 from houghloc.global_match import GlobalMatchConfig, global_match
 from houghloc.hypothesis_scores import seen_directly
 from houghloc.map_lookup import angle_index, wall_distance
 from houghloc.match_result import GlobalResult, Neighbourhood
-from houghloc.pose_hypotheses import observed_pairs, pair_hypotheses
+from houghloc.pose_hypotheses import _mod_two_pi, observed_pairs, pair_hypotheses
 from houghloc.refine import Lines
 from tests.conftest import MAPS
 
@@ -367,3 +372,23 @@ def test_segment_spans_cover_what_the_segments_cover(office: SegmentMap) -> None
         s = np.linspace(a, b, 4001)
         inside = ((s[:, None] >= lo) & (s[:, None] <= hi)).any(axis=1).mean()
         assert g == pytest.approx(inside, abs=2e-3)
+
+
+@settings(max_examples=3000, deadline=None)
+@given(st.one_of(st.floats(-30.0, 30.0), st.floats(allow_nan=True, allow_infinity=True)))
+@example(0.0)
+@example(-0.0)
+@example(TWO_PI)
+@example(-TWO_PI)
+@example(2 * TWO_PI)
+@example(math.nextafter(TWO_PI, 0.0))
+@example(math.nextafter(2 * TWO_PI, 0.0))
+@example(math.nextafter(-TWO_PI, 0.0))
+@example(-1e-300)
+@example(5e-324)
+def test_the_candidate_loops_modulo_is_pythons_bit_for_bit(u: float) -> None:
+    """The local search's candidate loop wraps angles without ``fmod`` where it can; the result
+    must be the floor modulo's to the last bit (and sign of zero), or hypotheses would move."""
+    mine, python = _mod_two_pi(u), u % TWO_PI
+    assert struct.pack("<d", mine) == struct.pack("<d", python) or (
+        math.isnan(mine) and math.isnan(python)), (u, mine, python)
