@@ -28,6 +28,7 @@ import numpy as np
 
 from fusion.cli_parser import build_parser
 from fusion.visualize import NullLogger
+from houghloc import __version__
 
 EXIT_BAD_INPUT = 2
 EXIT_NOT_LOCALIZED = 3
@@ -54,7 +55,7 @@ class _Stop:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(_version())
+    parser = build_parser(__version__)
     argv = sys.argv[1:] if argv is None else list(argv)
     ros_args: list[str] = []
     if "--ros-args" in argv:  # ROS's own arguments (remappings, parameters) go to rclpy
@@ -85,15 +86,6 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"houghloc: error: {_describe(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("houghloc")
-    except PackageNotFoundError:
-        return "0+unknown"
 
 
 def _describe(exc: Exception) -> str:
@@ -302,7 +294,7 @@ def cmd_config(args: argparse.Namespace) -> int:
         print(reference_markdown(), end="")
     else:
         config = LocalizerConfig.from_yaml(args.show)  # None: the defaults
-        print(f"# houghloc {_version()}: {'the defaults' if args.show is None else args.show}")
+        print(f"# houghloc {__version__}: {'the defaults' if args.show is None else args.show}")
         print(commented_yaml(config))
     return 0
 

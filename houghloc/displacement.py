@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -100,11 +99,16 @@ def match_and_solve(lines: Lines, refs: References, pose: NDArray, pose_cov: NDA
 
 
 @njit
-def _match_and_solve(max_observable_sigma: float, *association: Any) -> tuple:
-    """:func:`houghloc.matching.associate_kernel` of ``association`` (its arguments), then
+def _match_and_solve(max_observable_sigma: float, l_theta: NDArray, l_rho: NDArray,
+                     l_cov: NDArray, l_s0: NDArray, l_s1: NDArray, r_theta: NDArray,
+                     r_rho: NDArray, r_beta: NDArray, seg_ref: NDArray, seg_s0: NDArray,
+                     seg_s1: NDArray, pose: NDArray, pose_cov: NDArray, settings: tuple) -> tuple:
+    """:func:`houghloc.matching.associate_kernel` of the lines and references, then
     :func:`_solve` on the matches (with each match's reference normal β)."""
-    li, rj, residual, cov, d2, n_cand, ambiguous, claims = associate_kernel(*association)
-    beta = association[7][rj]  # each match's reference normal: associate_kernel's β, 8th
+    li, rj, residual, cov, d2, n_cand, ambiguous, claims = associate_kernel(
+        l_theta, l_rho, l_cov, l_s0, l_s1, r_theta, r_rho, r_beta, seg_ref, seg_s0, seg_s1,
+        pose, pose_cov, settings)
+    beta = r_beta[rj]  # each match's reference normal
     return (li, rj, residual, cov, d2, n_cand, ambiguous, claims, beta,
             _solve(cov, residual, beta, max_observable_sigma))
 

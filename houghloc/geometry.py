@@ -24,11 +24,6 @@ def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
     return (np.asarray(angle, dtype=float) + np.pi) % TWO_PI - np.pi
 
 
-def wrap_2pi(angle: ArrayLike) -> NDArray[np.float64] | float:
-    """Wrap angles to [0, 2π), the Hough domain's range for θ."""
-    return np.asarray(angle, dtype=float) % TWO_PI
-
-
 def compose(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     """Pose composition a ⊕ b: the pose b, given in the frame of a, in a's parent frame.
 

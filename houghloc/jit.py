@@ -56,12 +56,12 @@ def one_blas_thread(function: Callable[P, R]) -> Callable[P, R]:
 
     Global matching's arrays are small: OpenBLAS's threads gain nothing on them, and spin on
     the other cores while they wait (measured on 2 cores: a held-out Freiburg 079 replay spent
-    53 s of CPU in 48 s of wall time with them, 42 s in 42 s without). The manager's global
-    steps (collecting views, the local re-search) are so decorated; a tracking scan does no
-    BLAS work that spawns threads, and pays nothing. Only the decorated calls are limited; the
-    rest of the process keeps its threads. The libraries' controllers are found once and set
-    directly: threadpoolctl's ``limit`` context looks them up on every call (30 µs against
-    12 µs)."""
+    53 s of CPU in 48 s of wall time with no limit, 42 s in 42 s with these steps limited).
+    The manager's global steps (collecting views, the local re-search) are so decorated; a
+    tracking scan does no BLAS work that spawns threads, and pays nothing. Only the decorated
+    calls are limited; the rest of the process keeps its threads. The libraries' controllers
+    are found once and set directly: threadpoolctl's ``limit`` context looks them up on every
+    call (30 µs against 12 µs)."""
 
     @functools.wraps(function)
     def limited(*args: P.args, **kwargs: P.kwargs) -> R:
