@@ -257,10 +257,14 @@ class LocalizerNode(Node):
         one when ``t`` is past it)."""
         if not self._odometry:
             return None
-        times = np.fromiter((o[0] for o in self._odometry), float, len(self._odometry))
-        k = int(np.searchsorted(times, t))
-        if k == 0 or k == len(times):
-            return np.array(self._odometry[min(k, len(times) - 1)][1:])
+        # the first reading at or after t (the readings are in time order); scans come
+        # shortly before the newest reading, so the search starts from the end
+        readings = self._odometry
+        k = len(readings)
+        while k > 0 and readings[k - 1][0] >= t:
+            k -= 1
+        if k == 0 or k == len(readings):
+            return np.array(readings[min(k, len(readings) - 1)][1:])
         a, b = np.array(self._odometry[k - 1]), np.array(self._odometry[k])
         w = (t - a[0]) / (b[0] - a[0]) if b[0] > a[0] else 1.0
         pose = a[1:] + w * (b[1:] - a[1:])
