@@ -265,7 +265,7 @@ class LocalizerNode(Node):
             k -= 1
         if k == 0 or k == len(readings):
             return np.array(readings[min(k, len(readings) - 1)][1:])
-        a, b = np.array(self._odometry[k - 1]), np.array(self._odometry[k])
+        a, b = np.array(readings[k - 1]), np.array(readings[k])
         w = (t - a[0]) / (b[0] - a[0]) if b[0] > a[0] else 1.0
         pose = a[1:] + w * (b[1:] - a[1:])
         pose[2] = a[3] + w * float(wrap_angle(b[3] - a[3]))
