@@ -11,13 +11,12 @@ from __future__ import annotations
 
 import argparse
 import shutil
-import socket
 import subprocess
 import time
 from pathlib import Path
 from urllib.parse import quote
 
-from fusion.rerun_serve import SERVE_HOST, die_with_parent, rerun_executable
+from fusion.rerun_serve import SERVE_HOST, die_with_parent, free_port, rerun_executable
 
 VIEWPORT = {"width": 1600, "height": 1000}
 CHROMIUM_ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--no-sandbox"]
@@ -28,12 +27,6 @@ def chromium() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind((SERVE_HOST, 0))
-        return int(s.getsockname()[1])
-
-
 def screenshot(rrd: Path, out: Path, seconds: float = 60.0) -> Path:
     """Serve ``rrd`` to the web viewer, let the browser load and draw it for ``seconds`` (the
     viewer's WebAssembly and a software rasterizer are slow), and save what it shows."""
@@ -42,7 +35,7 @@ def screenshot(rrd: Path, out: Path, seconds: float = 60.0) -> Path:
     browser_path = chromium()
     if browser_path is None:
         raise RuntimeError("chromium is not installed (Debian package chromium)")
-    grpc, web = _free_port(), _free_port()
+    grpc, web = free_port(), free_port()
     server = subprocess.Popen(
         [rerun_executable(), "--serve-web", "--bind", SERVE_HOST, "--port", str(grpc),
          "--web-viewer-port", str(web), str(rrd)],

@@ -7,6 +7,7 @@ from __future__ import annotations
 import ctypes
 import shutil
 import signal
+import socket
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -24,6 +25,13 @@ GRPC_PORT = 9876
 
 
 WEB_PORT = 9090
+
+
+def free_port(host: str = SERVE_HOST) -> int:
+    """A TCP port free on ``host`` now (the system's pick), for a server started next."""
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
 
 
 def web_viewer_command(grpc_uri: str, web_port: int, host: str = SERVE_HOST) -> list[str]:

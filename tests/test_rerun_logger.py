@@ -9,7 +9,6 @@ through ``localize_scan``, so the logger sees real corrections; the ``.rrd`` is 
 from __future__ import annotations
 
 import inspect
-import socket
 import subprocess
 import sys
 import time
@@ -27,7 +26,7 @@ from fusion.ekf import UpdateOutcome
 from fusion.localizer import Estimate
 from fusion.rerun_columns import PATH_PIECE, PathPieces
 from fusion.rerun_logger import RerunLogger
-from fusion.rerun_serve import SERVE_HOST, web_viewer_command
+from fusion.rerun_serve import SERVE_HOST, free_port, web_viewer_command
 from fusion.rerun_view import covariance_ellipse, line_palette
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
@@ -235,9 +234,7 @@ def test_serving_binds_localhost_only(tmp_path: Path) -> None:
     assert SERVE_HOST == "127.0.0.1"
     command = web_viewer_command("rerun+http://127.0.0.1:9876/proxy", 9090)
     assert command[command.index("--bind") + 1] == "127.0.0.1"
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    port = free_port()
     logger = RerunLogger(tmp_path / "served.rrd", serve=True, grpc_port=port, web_port=None)
     try:
         assert logger.grpc_url == f"rerun+http://127.0.0.1:{port}/proxy"
@@ -253,20 +250,14 @@ def test_serving_binds_localhost_only(tmp_path: Path) -> None:
         logger.close()
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_the_web_viewer_ends_with_houghloc_however_it_ends(tmp_path: Path) -> None:
     """A process serving the viewer is killed outright (no close(), no handler runs): its
     `rerun --serve-web` child must not outlive it, holding the port."""
     script = (
         "import sys, time\n"
         "from fusion.rerun_logger import RerunLogger\n"
-        f"logger = RerunLogger(None, serve=True, grpc_port={_free_port()}, "
-        f"web_port={_free_port()})\n"
+        f"logger = RerunLogger(None, serve=True, grpc_port={free_port()}, "
+        f"web_port={free_port()})\n"
         "print(logger._web_viewer.pid, flush=True)\n"
         "time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)

@@ -8,7 +8,6 @@ import csv
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -22,6 +21,7 @@ from fusion.bench import Method, Protocol, expand, load_spec, run_sweep
 from fusion.bench.spec import SpecError
 from fusion.cli import main
 from fusion.io import flaser_angles
+from fusion.rerun_serve import free_port
 
 BIN = Path(sys.executable).parent
 
@@ -207,16 +207,10 @@ def test_peers_localize_the_simulated_office(office_run, tmp_path):
     assert ("icp", "global-start") not in rows
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_a_worker_killed_mid_sweep_loses_nothing(office_run, tmp_path):
     """A scheduler and two workers on localhost; one worker (nanny and process) is killed once
     the first result is in; every task still ends with exactly one row."""
-    port = _free_port()
+    port = free_port()
     address = f"tcp://127.0.0.1:{port}"
     env = {**os.environ, "DASK_DISTRIBUTED__LOGGING__DISTRIBUTED": "error"}
     procs = [subprocess.Popen([str(BIN / "dask"), "scheduler", "--host", "127.0.0.1",
