@@ -300,7 +300,7 @@ class Localizer:
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
                                    self.tracker.odometry_at(t),
                                    None if refs is None else (refs.theta, refs.rho),
-                                   verdict.guess_fit)
+                                   verdict.guess_fit, points, kinds)
         return estimate
 
     def _correct_odometry(self, t: float, points: NDArray) -> None:

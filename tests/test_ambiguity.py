@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import yaml
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -23,7 +24,8 @@ from fusion.sim import (
 )
 from fusion.sim.routes import OFFICE_LOOP
 from fusion.sim.run import interpolate_poses
-from houghloc import localize_scan
+from houghloc import SegmentMap, localize_scan
+from houghloc.geometry import ranges_to_points
 from tests.conftest import REPO
 
 CAMERA = REPO / "fusion" / "configs" / "robocup-camera.yaml"
@@ -33,9 +35,9 @@ OFFICE = REPO / "fusion" / "configs" / "office-laser.yaml"
 # opt-in since): give up tracking after five unusable scans or when σ passes half the spacing
 # of parallel lines in view, and decide among a global match's poses by those rules; with the
 # line extraction, gates and single-line fixes those rules were written for.
-RULES = {"hypotheses": None, "max_scans_without_fix": 5, "max_position_sigma_fraction": 0.5,
-         "max_fit_loss": None, "min_fit_gain": None, "hold_fit_ratio": None,
-         "local_search_xy": None}
+RULES = {"hypotheses": None, "max_scans_without_fix": 5, "through_wall_scans": None,
+         "max_position_sigma_fraction": 0.5, "max_fit_loss": None, "min_fit_gain": None,
+         "hold_fit_ratio": None, "local_search_xy": None}
 RULES_HOUGH = {"min_line_length": 0.4, "piece_gap": 1.0, "gate_probability": 0.999,
                "decisive_d2_margin": None}
 
@@ -601,3 +603,69 @@ def test_a_match_spread_over_scans_hands_its_poses_on_where_the_robot_is_now():
                              Localizer(run.map, slow, initial_pose=None))
     settle = settled_after(times, errors, times[0])
     assert settle is not None and settle <= 10.0
+
+
+INTERIOR = {"rs1", "rs2", "rs3", "rn1", "rn2", "pil1", "pil2", "pil3", "pil4", "cab1", "cab2",
+            "cab3", "alc1", "alc2", "alc3"}
+
+
+@given(x=st.floats(0.5, 25.5), y=st.floats(5.3, 6.7), heading=st.floats(-math.pi, math.pi),
+       seed=st.integers(0, 1000))
+def test_a_scan_at_its_own_pose_sees_nothing_through_walls(office, x, y, heading, seed):
+    """Anywhere in the office's corridor, a simulated scan placed at the pose it was taken from
+    has no point beyond a wall (the ray to each point crosses none more than the visibility
+    margin before it), whatever the range noise."""
+    from fusion.ambiguity.fit import ScanFit
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+
+    truth = np.array([x, y, heading])
+    scan = laser_scan(office, truth, np.random.default_rng(seed), LaserConfig(max_range=10.0))
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0, 0.0)
+    assert ScanFit(office, AmbiguityConfig()).seen_through(truth, points) == 0.0
+
+
+@pytest.mark.parametrize("truth", [(5.0, 6.0, 0.3), (12.0, 2.5, 1.0), (3.0, 9.5, -2.0)])
+def test_a_scan_three_metres_from_its_pose_is_seen_through_walls(office, truth):
+    """The same scan placed 3 m away (a kidnap) has a third to three quarters of its points
+    beyond the map's walls: what contradicts a belief, where an unexplained point does not."""
+    from fusion.ambiguity.fit import ScanFit
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+
+    truth = np.array(truth)
+    scan = laser_scan(office, truth, np.random.default_rng(0), LaserConfig(max_range=10.0))
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0, 0.0)
+    fit = ScanFit(office, AmbiguityConfig())
+    assert fit.seen_through(truth + [0.0, -3.0, 0.0], points) > 0.3
+    assert fit.seen_through(truth + [2.0, 2.0, 0.6], points) > 0.08
+
+
+@pytest.mark.parametrize("seed", [1, 3])
+def test_a_map_without_its_rooms_walls_is_tracked_through_by_odometry(seed):
+    """The office run localized in the office map without its interior walls (room dividers,
+    pillar, cabinet, alcove): in the rooms most of a scan lands where the map has nothing,
+    and fixes are scarce. None of those scans is seen through a wall from the right pose, so
+    tracking carries on by odometry and the error stays under 15 cm; giving up after
+    ``max_scans_without_fix`` such scans instead (``through_wall_scans`` None) hands the
+    pose to a look-alike metres away."""
+    raw = yaml.safe_load((REPO / "fusion" / "configs" / "maps" / "office.yaml").read_text())
+    raw["segments"] = [s for s in raw["segments"] if s["id"] not in INTERIOR]
+    lacking = SegmentMap.from_dict(raw)
+    run = simulate(scenario_preset("office-laser", seed=seed, duration=120.0))
+    base = LocalizerConfig.from_yaml(OFFICE)
+
+    def localize(through_wall_scans: float | None) -> tuple[int, float]:
+        config = base.model_copy(update={"ambiguity": base.ambiguity.model_copy(
+            update={"through_wall_scans": through_wall_scans})})
+        loc = Localizer(lacking, config, initial_pose=run.odom_truth[0])
+        _, errors, _ = drive(run, loc)
+        given_up = sum(tr.old is State.TRACKING and tr.new is State.COLLECTING
+                       for tr in loc.manager.transitions)
+        return given_up, float(errors[:, 0].max())
+
+    given_up, worst = localize(base.ambiguity.through_wall_scans)
+    assert base.ambiguity.through_wall_scans is not None  # the defaults judge by walls
+    assert given_up == 0 and worst < 0.15
+    given_up, worst = localize(None)
+    assert given_up >= 1 and worst > 3.0

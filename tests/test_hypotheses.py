@@ -187,11 +187,11 @@ def test_a_right_pose_that_fits_a_little_below_tracking_is_taken(office) -> None
 
 
 def test_tracking_given_up_too_early_is_taken_back_without_a_jump() -> None:
-    """Giving up at the first unusable scan (max_scans_without_fix 1; the laser blinded for
-    one scan) costs nothing when the belief was right: it is the first followed hypothesis,
-    keeps fitting, and is taken back within a few scans; the kidnap later is still recovered,
-    by a global match's pose."""
-    config = following(max_scans_without_fix=1, hold_fit_ratio=None)
+    """Giving up at the first unusable scan (max_scans_without_fix 1, whatever the scan
+    shows; the laser blinded for one scan) costs nothing when the belief was right: it is the
+    first followed hypothesis, keeps fitting, and is taken back within a few scans; the kidnap
+    later is still recovered, by a global match's pose."""
+    config = following(max_scans_without_fix=1, through_wall_scans=None, hold_fit_ratio=None)
     run, t_kidnap = kidnap_run(0)
     blind = 0.5 * t_kidnap
 

@@ -222,7 +222,8 @@ def dead_reckoned(run, scan_odometry: bool):
     config = office.model_copy(update={
         "sensors": {"laser": laser},
         "ambiguity": office.ambiguity.model_copy(update={
-            "max_scans_without_fix": 100000, "min_fit_gain": None, "local_search_xy": None}),
+            "max_scans_without_fix": 100000, "through_wall_scans": None, "min_fit_gain": None,
+            "local_search_xy": None}),
         "scan_odometry": office.scan_odometry.model_copy(update={"enabled": scan_odometry}),
     })
     return localize_simulated(run, config)

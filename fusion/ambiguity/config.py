@@ -17,7 +17,18 @@ class AmbiguityConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     max_scans_without_fix: int = Field(
-        25, ge=1, description="consecutive scans rejected, ambiguous or unmatched")
+        25, ge=1, description="consecutive scans rejected, ambiguous or unmatched (with "
+        "through_wall_scans None, or a sensor that does not see walls)")
+    # A scan without a usable fix is no evidence against the belief when its points land where
+    # the map has nothing (a room it lacks, furniture, people): the filter carries on by
+    # odometry. A scan seen through the map's walls from the belief contradicts it (a right
+    # pose sees through walls only by glass and doors the map has closed).
+    through_wall_scans: float | None = Field(
+        4.0, gt=0.0, description="tracking is given up when the scans without a usable fix "
+        "since the last one have seen, together, this many scans' worth of points through the "
+        "map's walls from the belief (each counts the fraction of its points beyond a wall by "
+        "more than global_match.visibility_margin); None: after max_scans_without_fix of "
+        "them, whatever they show")
     max_position_sigma_fraction: float | None = Field(
         None, gt=0.0, description="σ_xy beyond this fraction of the closest parallel-line "
         "spacing makes nearest-neighbour matching unsafe (None: no such check; on a real map "

@@ -4,6 +4,8 @@ The fraction of a scan's points within the global matcher's inlier distance of a
 up in the map's distance transform) is the manager's one measure of fit. Judged against the
 recent scans', it tells a fix that moved the scan off the walls (a misfit), a fix the matcher
 could not vouch for but the scan does, and a prediction that still holds without any fix.
+The fraction seen through the map's walls tells a belief the scan contradicts from one the map
+merely does not explain (a room it lacks).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from numpy.typing import NDArray
 
 from fusion.ambiguity.config import AmbiguityConfig
 from houghloc import SegmentMap
+from houghloc.hypothesis_scores import seen_directly
 from houghloc.map_lookup import wall_distance
 
 TRACKED_FITS = 200  # accepted scans whose fits tell what a right pose fits
@@ -71,6 +74,18 @@ class ScanFit:
         if len(points) == 0:
             return 0.0
         return float(self.fractions(np.asarray(pose, float).reshape(1, 3), points, kinds)[0])
+
+    def seen_through(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",)
+                     ) -> float:
+        """The fraction of ``points`` (robot frame) that the robot at ``pose`` could only have
+        seen through one of the map's walls of ``kinds``: the ray to the point crosses it more
+        than ``visibility_margin`` before the point (:func:`seen_directly`)."""
+        if len(points) == 0:
+            return 0.0
+        reach = float(np.max(np.hypot(points[:, 0], points[:, 1])))
+        seen = seen_directly(np.asarray(pose, float), points, self.map, kinds, reach,
+                             self.config.global_match.visibility_margin)
+        return 1.0 - float(np.mean(seen))
 
     def accepted(self, guess_fit: float) -> None:
         """A scan's fix was accepted: its guess's fit is what tracking fits here."""

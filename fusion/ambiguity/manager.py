@@ -5,7 +5,8 @@ States and triggers (:class:`fusion.status.State`)::
 
     tracking ──(scans without a usable fix: ambiguous, rejected, misfits (fixes that put the
     │           scan off the walls) or none, while the prediction no longer fits the scan
-    │           either; covariance too large for the line spacing in view)──▶ collecting
+    │           either, that see through the map's walls from the belief; covariance too
+    │           large for the line spacing in view)──▶ collecting
     collecting ──(enough views, spaced by motion)──▶ relocalizing (a global match, spread
     │            over scans: ``match_lookups_per_scan`` of it each)
     relocalizing ──▶ collecting, its poses followed, each by its own filter
@@ -117,7 +118,8 @@ class AmbiguityManager:
     # a filter at a pose with a covariance, for each followed hypothesis (the Localizer's own
     # settings); None: hypotheses are not followed by filters
     make_tracker: Callable[[NDArray, NDArray], PoseTracker] | None = None
-    _without_fix: int = 0
+    _without_fix: int = 0  # scans without a usable fix since the last one ...
+    _seen_through: float = 0.0  # ... and the scans' worth of their points seen through walls
     _prior: tuple[NDArray, NDArray, NDArray] | None = None  # pose, cov, odometry when tracking
     _last_trusted: tuple[NDArray, NDArray] | None = None  # pose, odometry at the last used fix
     _trusted_by_prior_only: bool = False  # tracking since a tie broken by _last_trusted alone
@@ -218,28 +220,43 @@ class AmbiguityManager:
     def tracking_step(self, t: float, status: ScanStatus, cov: NDArray,
                       pose: NDArray | None = None, odom: NDArray | None = None,
                       in_view: tuple[NDArray, NDArray] | None = None,
-                      guess_fit: float | None = None) -> None:
-        """After a tracking scan: **where tracking is given up.** It is, after
-        ``max_scans_without_fix`` scans without a usable fix (not counting those whose
-        ``guess_fit``, the fraction of points on walls at the guess, holds up: see
-        ``hold_fit_ratio``), or when the position's σ passes ``max_position_sigma_fraction`` of
-        the closest parallel lines in view, ``in_view`` the references' robot-frame (θ, ρ) (the
-        map's closest pair if not given)."""
+                      guess_fit: float | None = None, points: NDArray | None = None,
+                      kinds: tuple[str, ...] = ("wall",)) -> None:
+        """After a tracking scan: **where tracking is given up.** It is when the scans without
+        a usable fix since the last one (not counting those whose ``guess_fit``, the fraction
+        of points on walls at the guess, holds up: see ``hold_fit_ratio``) contradict the
+        belief ``pose``: together they have seen ``through_wall_scans`` scans' worth of their
+        ``points`` through the map's walls. A sensor that does not see walls (no ``"wall"`` in
+        ``kinds``), or ``through_wall_scans`` None, gives it up after ``max_scans_without_fix``
+        such scans instead. And when the position's σ passes ``max_position_sigma_fraction``
+        of the closest parallel lines in view, ``in_view`` the references' robot-frame (θ, ρ)
+        (the map's closest pair if not given)."""
         if self.state is not State.TRACKING:
             return
         if pose is not None and odom is not None:  # the belief, should tracking be abandoned
             self._prior = (np.array(pose, float), np.array(cov, float), np.array(odom, float))
             if status == ScanStatus.ACCEPTED:
                 self._last_trusted = (np.array(pose, float), np.array(odom, float))
-        if status == ScanStatus.RE_SEARCHED:
-            self._without_fix = 0
-        elif status == ScanStatus.ACCEPTED:
-            self._without_fix = 0
-            if guess_fit is not None:
+        through_walls = (self.config.through_wall_scans is not None and "wall" in kinds
+                         and pose is not None and points is not None)
+        if status in (ScanStatus.RE_SEARCHED, ScanStatus.ACCEPTED):
+            self._without_fix, self._seen_through = 0, 0.0
+            if status == ScanStatus.ACCEPTED and guess_fit is not None:
                 self.fit.accepted(guess_fit)
         elif not self.fit.guess_holds(guess_fit):
             self._without_fix += 1
-        if self._without_fix >= self.config.max_scans_without_fix:
+            if through_walls:
+                assert pose is not None and points is not None
+                self._seen_through += self.fit.seen_through(pose, points, kinds)
+        if through_walls:
+            assert self.config.through_wall_scans is not None
+            if self._seen_through >= self.config.through_wall_scans:
+                self._go(t, State.COLLECTING, (
+                    f"{self._without_fix} scans without a usable fix saw "
+                    f"{self._seen_through:.1f} scans' worth of points through the map's walls "
+                    f"(last: {status})"))
+                return
+        elif self._without_fix >= self.config.max_scans_without_fix:
             self._go(t, State.COLLECTING,
                      f"{self._without_fix} scans without a usable fix (last: {status})")
             return
@@ -404,7 +421,7 @@ class AmbiguityManager:
         self.views.failures = 0
         self.ties.clear()
         self.views.clear()
-        self._without_fix = 0
+        self._without_fix, self._seen_through = 0, 0.0
         self._go(t, State.TRACKING, f"relocalized: {verdict.reason}{why}")
         return Decision(verdict.pose, verdict.cov)
 
@@ -443,7 +460,7 @@ class AmbiguityManager:
         cov = np.array(best.cov, dtype=float)
         cov = 0.5 * (cov + cov.T) + self._reinit_floor
         self.views.clear()
-        self._without_fix = 0
+        self._without_fix, self._seen_through = 0, 0.0
         self._log_hypotheses(t, [best])
         self._go(t, State.TRACKING, f"relocalized: score {best.score:.2f}, "
                                     f"{best.n_lines_explained} lines explained"
@@ -459,7 +476,7 @@ class AmbiguityManager:
         if broken is None:
             return Decision()
         self.views.clear()
-        self._without_fix = 0
+        self._without_fix, self._seen_through = 0, 0.0
         if broken.by_distance:
             self.counts["ties_broken_by_distance"] += 1
         self._go(t, State.TRACKING, broken.reason)
@@ -486,7 +503,7 @@ class AmbiguityManager:
         if len(keep) > 1:
             return Decision()
         self.views.clear()
-        self._without_fix = 0
+        self._without_fix, self._seen_through = 0, 0.0
         self._go(t, State.TRACKING, f"tie broken by {label} at {math.degrees(bearing):.0f}°")
         self.ties.clear()
         cov = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
