@@ -68,8 +68,8 @@ def lines_on_walls(poses: NDArray, lines: Lines, walls: WallDistance,
     py = (lines.rho[:, None] * sn + s * c).astype(np.float32)
     out = np.empty((len(poses), len(lines)), bool)
     for sl in row_chunks(len(poses), px.size):
-        on_wall = walls.within(poses[sl], px, py, config.inlier_distance)  # H×K×S, 0 or 1
-        out[sl] = on_wall.mean(axis=2, dtype=np.float64) >= config.min_line_coverage
+        on_wall = walls.at(poses[sl], px, py) <= config.inlier_distance  # H×K×S
+        out[sl] = on_wall.mean(axis=2) >= config.min_line_coverage
     return out
 
 
@@ -97,9 +97,10 @@ def point_scores(poses: NDArray, points: NDArray, members: NDArray[np.bool_],
     inliers = np.empty(len(poses))
     explained = np.empty((len(poses), members.shape[1]), dtype=bool)
     for sl in row_chunks(len(poses), len(points)):
-        on_wall = walls.within(poses[sl], points[:, 0], points[:, 1], config.inlier_distance)
+        on_wall = walls.at(poses[sl], points[:, 0], points[:, 1]) <= config.inlier_distance
         if visible is not None:
-            on_wall *= visible[sl]
+            on_wall &= visible[sl]
+        on_wall = on_wall.astype(np.float32)
         inliers[sl] = on_wall.mean(axis=1)
         covered = (on_wall @ m) / np.maximum(n_k, 1.0)
         explained[sl] = (covered >= config.min_line_coverage) & (n_k > 0)

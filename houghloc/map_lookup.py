@@ -85,19 +85,6 @@ class WallDistance:
                             poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]), _flat(x), _flat(y),
                             np.float32(within))
 
-    def within(self, poses: NDArray, x: NDArray, y: NDArray, distance: float
-               ) -> NDArray[np.float32]:
-        """1 where a robot-frame point (``x``, ``y``, shape S) placed at each of ``poses``
-        (P×3) lies at most ``distance`` from a wall (its cell's value, :meth:`at`, compared in
-        float32 as NumPy compares them), else 0: P×S float32, ready for the scores' matrix
-        products, in one pass (no P×S array of distances)."""
-        shape = np.shape(x)
-        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-        out = _within_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,
-                         poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]), _flat(x), _flat(y),
-                         np.float32(distance))
-        return out.reshape((len(poses),) + shape)
-
     def closeness(self, poses: NDArray, x: NDArray, y: NDArray, reach: float,
                   smooth: bool = False) -> NDArray[np.float64]:
         """How close robot-frame points (``x``, ``y``) placed at each of ``poses`` (P×3) lie
@@ -163,21 +150,6 @@ def _on_walls_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: ND
                 count += 1
         if len(x):
             out[p] = count / len(x)
-    return out
-
-
-@njit
-def _within_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: NDArray,
-               cos_t: NDArray, sin_t: NDArray, x: NDArray, y: NDArray, within: np.float32
-               ) -> NDArray[np.float32]:
-    out = np.zeros((len(poses), len(x)), np.float32)
-    for p in range(len(poses)):
-        c, s, px, py = cos_t[p], sin_t[p], poses[p, 0], poses[p, 1]
-        for k in range(len(x)):
-            d = np.float32(_distance(grid, (px + c * x[k] - s * y[k] - ox) * inv_cell,
-                                     (py + s * x[k] + c * y[k] - oy) * inv_cell, False))
-            if d <= within:
-                out[p, k] = 1.0
     return out
 
 
