@@ -240,7 +240,7 @@ class AmbiguityManager:
         through_walls = (self.config.through_wall_scans is not None and "wall" in kinds
                          and pose is not None and points is not None)
         if status in (ScanStatus.RE_SEARCHED, ScanStatus.ACCEPTED):
-            self._without_fix, self._seen_through = 0, 0.0
+            self._fix_found()
             if status == ScanStatus.ACCEPTED and guess_fit is not None:
                 self.fit.accepted(guess_fit)
         elif not self.fit.guess_holds(guess_fit):
@@ -273,6 +273,10 @@ class AmbiguityManager:
         if sigma > fraction * spacing:
             self._go(t, State.COLLECTING, f"position σ {sigma:.2f} m exceeds {fraction:g} of the "
                                           f"{spacing:.2f} m between parallel lines in view")
+
+    def _fix_found(self) -> None:
+        """A usable fix, or a new pose: the evidence for giving tracking up starts again."""
+        self._without_fix, self._seen_through = 0, 0.0
 
     @property
     def _reinit_floor(self) -> NDArray[np.float64]:
@@ -421,7 +425,7 @@ class AmbiguityManager:
         self.views.failures = 0
         self.ties.clear()
         self.views.clear()
-        self._without_fix, self._seen_through = 0, 0.0
+        self._fix_found()
         self._go(t, State.TRACKING, f"relocalized: {verdict.reason}{why}")
         return Decision(verdict.pose, verdict.cov)
 
@@ -460,7 +464,7 @@ class AmbiguityManager:
         cov = np.array(best.cov, dtype=float)
         cov = 0.5 * (cov + cov.T) + self._reinit_floor
         self.views.clear()
-        self._without_fix, self._seen_through = 0, 0.0
+        self._fix_found()
         self._log_hypotheses(t, [best])
         self._go(t, State.TRACKING, f"relocalized: score {best.score:.2f}, "
                                     f"{best.n_lines_explained} lines explained"
@@ -476,7 +480,7 @@ class AmbiguityManager:
         if broken is None:
             return Decision()
         self.views.clear()
-        self._without_fix, self._seen_through = 0, 0.0
+        self._fix_found()
         if broken.by_distance:
             self.counts["ties_broken_by_distance"] += 1
         self._go(t, State.TRACKING, broken.reason)
@@ -503,7 +507,7 @@ class AmbiguityManager:
         if len(keep) > 1:
             return Decision()
         self.views.clear()
-        self._without_fix, self._seen_through = 0, 0.0
+        self._fix_found()
         self._go(t, State.TRACKING, f"tie broken by {label} at {math.degrees(bearing):.0f}°")
         self.ties.clear()
         cov = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
