@@ -24,6 +24,8 @@ from houghloc.segment_map import References, SegmentMap
 if TYPE_CHECKING:
     from houghloc.config import GlobalMatchConfig
 
+END_GRAZE = 1e-3  # m; a ray this close to a wall's end along it passes the wall (seen_directly)
+
 
 @dataclass(frozen=True)
 class Hypothesis:
@@ -190,7 +192,9 @@ def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[
     segment p + u e, u ∈ [0, 1], where (Cramer's rule on o + t d = p + u e, d = q − o)
         t = (w × e) / (d × e),   u = (w × d) / (d × e),   w = p − o.
     A crossing more than ``margin`` before the point means the point was seen through that wall.
-    Only walls occlude; painted lines do not.
+    A ray through a wall's very end (within ``END_GRAZE`` of it along the wall) passes it: a
+    beam at a door frame or an outside corner cannot tell the two sides apart, and a simulated
+    one passes them. Only walls occlude; painted lines do not.
     """
     near = map.segments_near(pose[:2], max_range)
     near = near[np.isin(map.kinds[near], kinds) & map.is_wall[near]]
@@ -207,6 +211,11 @@ def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, start
                 ends: NDArray, margin: float) -> NDArray[np.bool_]:
     """:func:`seen_directly` for the robot at (ox, oy) heading (c, s) = (cos θ, sin θ)."""
     seen = np.ones(len(points), np.bool_)
+    # the fraction of each wall's length that is END_GRAZE: u must lie beyond it from both ends
+    graze = np.empty(len(starts))
+    for j in range(len(starts)):
+        graze[j] = END_GRAZE / max(math.hypot(ends[j, 0] - starts[j, 0],
+                                              ends[j, 1] - starts[j, 1]), END_GRAZE)
     for i in range(len(points)):
         dx = ox + c * points[i, 0] - s * points[i, 1] - ox  # d = q − o, q in the world
         dy = oy + s * points[i, 0] + c * points[i, 1] - oy
@@ -219,7 +228,7 @@ def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, start
                 continue
             t = (wx * ey - wy * ex) / den
             u = (wx * dy - wy * dx) / den
-            if t > 1e-6 and t < t_max and u >= 0 and u <= 1:
+            if t > 1e-6 and t < t_max and u > graze[j] and u < 1.0 - graze[j]:
                 seen[i] = False
                 break
     return seen
