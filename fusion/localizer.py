@@ -286,8 +286,8 @@ class Localizer:
         status, outcome = self._use_fix(t, fix, verdict)
         t2 = perf_counter()
         self.stats.seconds["update"] += t2 - t1
-        decision = self.manager.re_search(t, status, verdict, guess, points, fix, kinds, cfg.hough,
-                                          lambda: self.tracker.odometry_at(t))
+        decision = self.manager.re_search(t, status, verdict, guess, guess_cov, points, fix,
+                                          kinds, cfg.hough, lambda: self.tracker.odometry_at(t))
         if decision is not None:
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)

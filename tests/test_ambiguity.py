@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import yaml
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from fusion import Localizer, LocalizerConfig
@@ -24,7 +24,8 @@ from fusion.sim import (
 )
 from fusion.sim.routes import OFFICE_LOOP
 from fusion.sim.run import interpolate_poses
-from houghloc import SegmentMap, localize_scan
+from fusion.status import ScanStatus
+from houghloc import HoughConfig, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points
 from tests.conftest import REPO
 
@@ -224,6 +225,31 @@ def test_fit_judges_fixes_the_matcher_cannot(office):
     assert manager.state is State.COLLECTING
 
 
+@pytest.mark.parametrize("clutter, used", [(0, True), (300, False)])
+def test_a_fix_the_scan_vouches_for_must_still_fit_like_recent_ones(office, clutter, used):
+    """One wall in view (the y = 7 wall, 1 m to the left): the matcher cannot vouch for a
+    one-line fix, and the guess, 0.3 m off that wall, has no point on it. The fix puts the
+    wall's points on it: with nothing else in view that is the whole scan, and it is used; among
+    300 points that lie on no wall it is a sixth of the scan, against 0.9 for recent fixes, and
+    it is a misfit like any other fix that leaves the scan off the walls."""
+    rng = np.random.default_rng(4)
+    truth = np.array([5.0, 6.0, 0.0])
+    wall = np.column_stack((np.linspace(-3.0, 0.8, 60), np.full(60, 1.0)))  # short of a door
+    room = rng.uniform(-1.0, 1.0, (clutter, 2)) * [3.0, 0.35] + [0.0, 0.05]  # off its walls
+    points = np.concatenate((wall, room))
+    manager = AmbiguityManager(office, AmbiguityConfig())
+    manager.fit.used.extend([0.9] * 5)  # recent fixes put nine tenths of their scans on walls
+    guess = truth + [0.0, -0.3, 0.0]
+    fix = localize_scan(points, office, guess, HoughConfig(),
+                        pose_cov=np.diag([0.2**2, 0.2**2, math.radians(2.0) ** 2]))
+    assert fix.rank == 2 and len(fix.matches) == 1 and abs(fix.pose[1] - truth[1]) < 0.05
+    verdict = manager.judge(guess, fix, points, ("wall",), min_lines=2)
+    assert verdict.guess_fit == 0.0 and verdict.fix_fit is not None
+    assert verdict.fix_fit >= 0.03 and manager.counts["fixes_by_fit"] == 1
+    assert verdict.use is used
+    assert verdict.status is (None if used else ScanStatus.MISFIT)
+
+
 @pytest.mark.parametrize("slip", [(0.0, 0.0, 12.0), (0.0, 0.0, -16.0), (0.29, 0.09, 14.0)])
 def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
     """The odometry reports a turn of 12-16° that the robot did not make (a wheel slip in a turn
@@ -292,6 +318,43 @@ def test_local_search_keeps_within_reach_of_the_odometry(office, reach):
         assert math.hypot(*(loc.pose - start)[:2]) < 0.05
 
 
+@pytest.mark.parametrize("sigma_deg, found", [(1.0, False), (20.0, True)])
+def test_local_search_turns_as_far_as_the_guess_is_uncertain(office, sigma_deg, found):
+    """A fast spin the odometry half missed leaves the guess 50° off the robot's heading. With
+    the heading σ the motion model grew in such a spin (20°), the re-search reaches that far
+    (3.9 σ at the matcher's gate probability) and finds the robot; with σ = 1° it keeps to its
+    least range (±20°) and finds nothing there that fits."""
+    from fusion.ambiguity.local_search import _heading_reach
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+
+    assert _heading_reach(0.35, None, 0.9999) == 0.35
+    assert _heading_reach(0.35, np.diag([1.0, 1.0, 0.0025]), 0.9999) == 0.35
+    assert _heading_reach(0.35, np.diag([1.0, 1.0, 0.04]), 0.9999) == pytest.approx(0.2 * 3.8906,
+                                                                                   rel=1e-4)
+    assert _heading_reach(0.35, np.diag([1.0, 1.0, 100.0]), 0.9999) == math.pi
+
+    manager = AmbiguityManager(office, AmbiguityConfig(local_search_xy=1.0, hold_fit_ratio=0.9))
+    truth = np.array([5.0, 6.0, 0.3])
+    scan = laser_scan(office, truth, np.random.default_rng(3), LaserConfig(max_range=10.0))
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0, 0.0)
+    for k in range(5):  # tracking fitted this well before the spin
+        assert manager.fit.fix_fits(truth, points, guess_fit=0.9)
+        manager.tracking_step(float(k), "accepted", np.diag([0.01, 0.01, 0.001]), guess_fit=0.9)
+    guess = truth + [0.05, -0.05, math.radians(50.0)]
+    guess_cov = np.diag([0.1**2, 0.1**2, math.radians(sigma_deg) ** 2])
+    fix = localize_scan(points, office, guess, HoughConfig(), pose_cov=guess_cov)
+    guess_fit = manager.fit.fraction(guess, points)
+    decision = manager.local_search(5.0, guess, points, fix, ("wall",), guess_fit, HoughConfig(),
+                                    None, guess_cov)
+    if found:
+        assert decision.reset_pose is not None
+        error = decision.reset_pose - truth
+        assert math.hypot(error[0], error[1]) < 0.05 and abs(math.degrees(error[2])) < 1.0
+    else:
+        assert decision.reset_pose is None
+
+
 def test_local_search_is_wanted_when_the_scan_fits_worse_than_usual(office):
     """At the guess when no fix was used; at the fix when one was: two lines matched to the
     wrong walls after a slip pass the gates and still leave the scan off the walls."""
@@ -317,7 +380,6 @@ def test_local_search_candidate_in_a_corridor_keeps_the_guess_along_it(office):
     position along the corridor, with a finite uncertainty there, so starts along the corridor
     do not become rivals of each other. An ambiguous or empty fix is no candidate."""
     from fusion.ambiguity.local_search import _polished
-    from houghloc import HoughConfig
 
     true = np.array([5.5, 6.2, 0.0])
     along = np.arange(-4.0, 4.0, 0.03)
@@ -611,10 +673,12 @@ INTERIOR = {"rs1", "rs2", "rs3", "rn1", "rn2", "pil1", "pil2", "pil3", "pil4", "
 
 @given(x=st.floats(0.5, 25.5), y=st.floats(5.3, 6.7), heading=st.floats(-math.pi, math.pi),
        seed=st.integers(0, 1000))
+@example(x=6.0, y=6.0, heading=2.220446049250313e-16, seed=2)  # a beam through a door's edge
 def test_a_scan_at_its_own_pose_sees_nothing_through_walls(office, x, y, heading, seed):
     """Anywhere in the office's corridor, a simulated scan placed at the pose it was taken from
     has no point beyond a wall (the ray to each point crosses none more than the visibility
-    margin before it), whatever the range noise."""
+    margin before it), whatever the range noise. The example's 45° beam passes exactly through
+    the end of the wall at a door (7, 7), as the simulated laser's does."""
     from fusion.ambiguity.fit import ScanFit
     from fusion.sim.config import LaserConfig
     from fusion.sim.laser import laser_scan

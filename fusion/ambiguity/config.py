@@ -107,8 +107,9 @@ class AmbiguityConfig(BaseModel):
     # rest of the building cannot compete.
     local_search_xy: float | None = Field(
         1.0, gt=0.0, description="m; radius of the local re-search (None: no local search)")
-    local_search_theta_deg: float = Field(20.0, gt=0.0, le=180.0,
-                                          description="°; heading range of the local re-search")
+    local_search_theta_deg: float = Field(
+        20.0, gt=0.0, le=180.0, description="°; heading range of the local re-search, at "
+        "least (wider when the guess's heading σ is: as far as hough.gate_probability reaches)")
     # What keeps a wrong pose out is a rival, not a level: how much of a scan lies on walls
     # at the right pose varies from room to room (clutter), a margin over every other pose in
     # the neighbourhood does not (docs/experiments.md, "The local re-search").

@@ -25,6 +25,7 @@ from houghloc import (
 from houghloc.displacement import UNOBSERVED_VARIANCE
 from houghloc.geometry import wrap_angle, wrap_scalar
 from houghloc.match_result import Neighbourhood
+from houghloc.matching import gate_threshold
 
 
 @dataclass(frozen=True, slots=True)
@@ -49,19 +50,22 @@ class LocalSearch:
 
     def find(self, guess: NDArray, points: NDArray, fix: ScanCorrection,
              kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig,
-             moved_since_fix: float | None) -> Found:
+             moved_since_fix: float | None, guess_cov: NDArray | None = None) -> Found:
         """Match the lines of the tracking ``fix`` (from the same ``points``) to the map near
-        ``guess``. The pose found is returned when it clearly fits the scan better than the
-        guess and about as well as tracking did, no other pose in the neighbourhood scores as
-        well (a corridor leaves the position along it open), and it is within reach of the
-        odometry's motion since the last accepted fix (``moved_since_fix``, m; None: no bound)
-        (``local_reach_per_metre``)."""
+        ``guess`` (within ``local_search_xy``, and within ``local_search_theta_deg`` of its
+        heading or, when ``guess_cov`` says the heading is less certain, as far as the matcher's
+        ``gate_probability`` reaches: :func:`_heading_reach`). The pose found is returned
+        when it clearly fits the scan better than the guess and about as well as tracking did,
+        no other pose in the neighbourhood scores as well (a corridor leaves the position along
+        it open), and it is within reach of the odometry's motion since the last accepted fix
+        (``moved_since_fix``, m; None: no bound) (``local_reach_per_metre``)."""
         lines, radius = fix.lines, self.config.local_search_xy
         if (lines is None or len(lines) < 2 or lines.members.shape[0] != len(points)
                 or fix.grid is None or fix.accumulator is None or radius is None):
             return Found()
-        near = Neighbourhood(np.asarray(guess, float), radius,
-                             math.radians(self.config.local_search_theta_deg))
+        turn = _heading_reach(math.radians(self.config.local_search_theta_deg), guess_cov,
+                              hough.gate_probability)
+        near = Neighbourhood(np.asarray(guess, float), radius, turn)
         # only the best three are polished below: refining more would be wasted
         local = self.config.global_match.model_copy(update={"max_refined": 3})
         result = global_match(lines, points, self.map, local, kinds, near)
@@ -72,8 +76,7 @@ class LocalSearch:
         # Candidates: the matcher's poses (clustered by 5°, so each is polished by tracking from
         # it) and the guess turned and moved along its heading step by step (a slip in a turn,
         # an unreported reversal), each corrected by tracking from there.
-        sweep = _sweep(np.asarray(guess, float), radius,
-                       math.radians(self.config.local_search_theta_deg))
+        sweep = _sweep(np.asarray(guess, float), radius, turn)
         raw = self.fit.fractions(sweep, points, kinds)  # polish the promising ones only
         starts = [np.asarray(h.pose, float) for h in result.hypotheses[:3]]
         starts += list(sweep[np.argsort(-raw, kind="stable")[:6]])
@@ -110,6 +113,18 @@ class LocalSearch:
             return True
         self.counts["local_out_of_reach"] += 1
         return False
+
+
+def _heading_reach(least: float, guess_cov: NDArray | None, probability: float) -> float:
+    """How far (rad) from the guess's heading the re-search looks: ``least``, or the
+    heading's own uncertainty where it is wider, the half-width that holds the true heading with
+    ``probability`` under the guess's covariance (√χ²₁(p) σθ; 3.9 σθ at 0.9999), at most π.
+    A fast turn the odometry missed leaves the heading tens of degrees out, and the filter's
+    covariance, grown by the motion model, says so."""
+    if guess_cov is None:
+        return least
+    sigma = math.sqrt(max(float(guess_cov[2, 2]), 0.0))
+    return min(max(least, math.sqrt(gate_threshold(probability, 1)) * sigma), math.pi)
 
 
 def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = 0.3

@@ -144,12 +144,13 @@ class AmbiguityManager:
     # ------------------------------------------------------------------ tracking
     def judge(self, guess: NDArray, fix: ScanCorrection, points: NDArray,
               kinds: tuple[str, ...], min_lines: int) -> Verdict:
-        """Should the filter be offered this tracking fix? A fix the matcher vouches for (not
-        ambiguous, of rank > 0, at least ``min_lines`` lines matched) is, unless it puts the
-        scan off the walls (:meth:`ScanFit.fix_fits`: the robot is elsewhere, or the lines were
-        matched to the wrong walls, however small the innovation); one it cannot vouch for is
-        when the scan itself does (:meth:`ScanFit.fix_gains`: the odometry slipped in a
-        turn)."""
+        """Should the filter be offered this tracking fix? One the matcher vouches for (not
+        ambiguous, of rank > 0, at least ``min_lines`` lines matched) is, and one it cannot
+        vouch for is when the scan itself does (:meth:`ScanFit.fix_gains`: the odometry slipped
+        in a turn); either only if it keeps the scan on the walls about as well as recent fixes
+        did (:meth:`ScanFit.fix_fits`: the robot is elsewhere, or the lines were matched to the
+        wrong walls, however small the innovation). A few more points on walls than a guess
+        that has none does not vouch for a fix that leaves the scan off them."""
         fit = self.fit
         # the fractions of the scan on walls at the guess and at the fix, once (in one pass),
         # for every check that wants them
@@ -166,19 +167,19 @@ class AmbiguityManager:
         if not (vouched or by_fit):
             status = ScanStatus.AMBIGUOUS if fix.ambiguous else ScanStatus.NO_FIX
             return Verdict(False, status, guess_fit, fix_fit)
-        if vouched and not fit.fix_fits(fix.pose, points, kinds, guess_fit, fix_fit):
+        if not fit.fix_fits(fix.pose, points, kinds, guess_fit, fix_fit):
             return Verdict(False, ScanStatus.MISFIT, guess_fit, fix_fit)
         return Verdict(True, None, guess_fit, fix_fit)
 
     def re_search(self, t: float, status: ScanStatus, verdict: Verdict, guess: NDArray,
-                  points: NDArray, fix: ScanCorrection, kinds: tuple[str, ...],
-                  hough: HoughConfig, odometry: Callable[[], NDArray | None]
-                  ) -> Decision | None:
+                  guess_cov: NDArray, points: NDArray, fix: ScanCorrection,
+                  kinds: tuple[str, ...], hough: HoughConfig,
+                  odometry: Callable[[], NDArray | None]) -> Decision | None:
         """After a tracking scan's update (``status``): when the scan fits worse than usual (at
         the guess if no fix was accepted, at the fix if one was), the local search near the
-        guess (:meth:`local_search`), bounded by the motion since the last accepted fix
-        (``odometry()``: the odometry at the scan, asked only then); None when none was
-        wanted."""
+        guess (:meth:`local_search`; its heading reach grows with ``guess_cov``), bounded by
+        the motion since the last accepted fix (``odometry()``: the odometry at the scan, asked
+        only then); None when none was wanted."""
         guess_fit = verdict.guess_fit
         fix_fit = verdict.fix_fit if status == ScanStatus.ACCEPTED else None
         if guess_fit is None or not self.wants_local_search(guess_fit, fix_fit):
@@ -186,7 +187,7 @@ class AmbiguityManager:
         # tracking failed and the prediction no longer fits: the odometry slipped, or
         # reported a motion the robot did not make. Look for the pose near it first.
         return self.local_search(t, guess, points, fix, kinds, max(guess_fit, fix_fit or 0.0),
-                                 hough, odometry())
+                                 hough, odometry(), guess_cov)
 
     def wants_local_search(self, guess_fit: float | None, fix_fit: float | None = None) -> bool:
         """Is a local re-search on, and does the scan fit worse than usual
@@ -199,13 +200,13 @@ class AmbiguityManager:
     @one_blas_thread  # global matching's arrays: see one_blas_thread
     def local_search(self, t: float, guess: NDArray, points: NDArray, fix: ScanCorrection,
                      kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig,
-                     odom: NDArray | None) -> Decision:
+                     odom: NDArray | None, guess_cov: NDArray | None = None) -> Decision:
         """The pose near ``guess`` that the scan fits (:class:`LocalSearch`), within reach of
         the odometry ``odom``'s motion since the last accepted fix: it re-initialises the
         filter."""
         moved = (None if odom is None or self._last_trusted is None else
                  math.hypot(*(np.asarray(odom, float)[:2] - self._last_trusted[1][:2])))
-        found = self._local.find(guess, points, fix, kinds, guess_fit, hough, moved)
+        found = self._local.find(guess, points, fix, kinds, guess_fit, hough, moved, guess_cov)
         if found.pose is None or found.cov is None:
             return Decision(result=found.result)
         shift = found.pose - np.asarray(guess, float)
