@@ -705,6 +705,34 @@ def test_a_scan_three_metres_from_its_pose_is_seen_through_walls(office, truth):
     assert fit.seen_through(truth + [2.0, 2.0, 0.6], points) > 0.08
 
 
+@pytest.mark.parametrize("truth", [(5.0, 6.0, 0.3), (12.0, 2.5, 1.0), (3.0, 9.5, -2.0)])
+def test_the_scan_is_far_likelier_at_its_pose_than_where_it_sees_through_walls(office, truth):
+    """A scan's shares on walls, through them and neither sum to one; at its own pose nearly all
+    its points are on walls and none beyond one. The same scan 3 m away sees through walls: the
+    scan's likelihood makes its own pose more than 19 times likelier (what a local re-search
+    needs to move the filter), and the pose 3 m away is no re-search result against it."""
+    from collections import Counter
+
+    from fusion.ambiguity.fit import ScanFit
+    from fusion.ambiguity.local_search import LocalSearch
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+
+    truth = np.array(truth)
+    scan = laser_scan(office, truth, np.random.default_rng(0), LaserConfig(max_range=10.0))
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0, 0.0)
+    config = AmbiguityConfig()
+    fit = ScanFit(office, config)
+    away = truth + [0.0, -3.0, 0.0]
+    shares = fit.shares(np.array([truth, away]), points)
+    assert np.allclose(shares.sum(axis=1), 1.0)
+    assert shares[0, 0] > 0.9 and shares[0, 1] == 0.0 and shares[1, 1] > 0.3
+    search = LocalSearch(office, config, fit, Counter())
+    assert search._likelier(truth, away, points, ("wall",))
+    assert not search._likelier(away, truth, points, ("wall",))
+    assert search.counts["local_less_likely"] == 1
+
+
 @pytest.mark.parametrize("seed", [1, 3])
 def test_a_map_without_its_rooms_walls_is_tracked_through_by_odometry(seed):
     """The office run localized in the office map without its interior walls (room dividers,

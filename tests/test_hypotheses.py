@@ -30,15 +30,22 @@ COV = np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2])
 SPOTS = [np.array([2.0 + 4.0 * i, 3.0, 0.0]) for i in range(6)]
 
 
-def bank(office, fits, config: HypothesisConfig | None = None) -> HypothesisBank:
-    """A bank on the office map whose scans fit each followed pose as ``fits(poses)`` says."""
+def bank(office, fits, config: HypothesisConfig | None = None, through=None) -> HypothesisBank:
+    """A bank on the office map whose scans fit each followed pose as ``fits(poses)`` says (the
+    fraction on walls, all seen directly), and see ``through(poses)`` of their points through
+    walls (none if not given)."""
     fc = FilterConfig()
 
     def make_tracker(pose, cov):
         return PoseTracker(pose, cov, fc.motion, fc.history_seconds, fc.gate_probability)
 
+    def shares(poses, points):
+        hit = np.asarray(fits(poses), float)
+        seen_through = np.zeros(len(hit)) if through is None else np.asarray(through(poses))
+        return np.column_stack((hit, seen_through, 1.0 - hit - seen_through))
+
     return HypothesisBank(office, config or HypothesisConfig(), make_tracker,
-                          lambda poses, points: np.asarray(fits(poses), float))
+                          lambda poses, points: np.asarray(fits(poses), float), shares)
 
 
 def weigh(b: HypothesisBank, odom=(0.5, 0.0, 0.0), least_fit: float | None = None):
@@ -48,18 +55,26 @@ def weigh(b: HypothesisBank, odom=(0.5, 0.0, 0.0), least_fit: float | None = Non
 
 
 @settings(max_examples=50, deadline=None)
-@given(st.lists(st.tuples(st.floats(0.05, 1.0), st.floats(0.6, 1.0)), min_size=2, max_size=6))
-def test_weights_follow_bayes_rule(office, priors_and_fits) -> None:
-    """w ← w · max(max(f, f_min)^n, ε · max L), normalised: the posterior of each pose given
-    the scan, no scan weighing more than 1/ε against one (fits within 0.6-1: none falls below
-    the pruning floor)."""
-    priors = [p for p, _ in priors_and_fits]
-    fits = np.array([f for _, f in priors_and_fits])
+@given(st.lists(st.tuples(st.floats(0.05, 1.0), st.floats(0.0, 1.0), st.floats(0.0, 1.0)),
+                min_size=2, max_size=6))
+def test_weights_follow_bayes_rule(office, priors_and_shares) -> None:
+    """w ← w · max(L, ε · max L), L = p_hit^(n h) p_through^(n x) p_neither^(n (1 − h − x)),
+    normalised: the posterior of each pose given the scan's shares on walls (h) and through
+    them (x), no scan weighing more than 1/ε against one (the pruning floor set aside)."""
+    priors = [p for p, _, _ in priors_and_shares]
+    hit = np.array([h for _, h, _ in priors_and_shares])
+    through = np.array([(1.0 - h) * x for _, h, x in priors_and_shares])
     config = HypothesisConfig(prune_probability=1e-12, accept_probability=0.999999)
-    b = bank(office, lambda poses: fits[np.rint((poses[:, 0] - 2.0) / 4.0).astype(int)], config)
+
+    def spot(poses):
+        return np.rint((poses[:, 0] - 2.0) / 4.0).astype(int)
+
+    b = bank(office, lambda poses: hit[spot(poses)], config, lambda poses: through[spot(poses)])
     b.seed(0.0, np.zeros(3), SPOTS[: len(priors)], [COV] * len(priors), priors)
     weigh(b)
-    likelihood = np.maximum(fits, config.min_fit) ** config.independent_points
+    p = config.hit_probability, config.through_probability
+    likelihood = (p[0] ** hit * p[1] ** through * (1.0 - p[0] - p[1]) ** (1.0 - hit - through)
+                  ) ** config.independent_points
     likelihood = np.maximum(likelihood, config.unexplained_scan_probability * likelihood.max())
     expected = np.array(priors) / sum(priors) * likelihood
     expected /= expected.sum()
@@ -67,6 +82,23 @@ def test_weights_follow_bayes_rule(office, priors_and_fits) -> None:
     assert len(got) == len(priors)
     assert np.allclose(sorted(got), sorted(expected), rtol=1e-9, atol=1e-12)
     assert sum(got) == pytest.approx(1.0)
+
+
+def test_a_pose_that_sees_through_walls_loses_to_one_that_fits_less(office) -> None:
+    """Two poses: one puts 0.6 of the scan on walls and sees none through them; the other puts
+    0.7 on walls by seeing 0.2 through them, as a look-alike in a map that lacks the robot's room
+    does. A scan weighs e^6.5 for the first (bounded at 1/ε = 20), where the fraction on walls
+    alone would favour the second."""
+    b = bank(office, lambda poses: [0.6, 0.7][: len(poses)], through=lambda poses: [0.0, 0.2])
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    weigh(b)
+    moved = 0.5  # the odometry of the weighed scan
+    assert b.leader.pose[0] == pytest.approx(SPOTS[0][0] + moved, abs=0.01)
+    assert b.leader.weight == pytest.approx(1.0 / 1.05)
+    b = bank(office, lambda poses: [0.6, 0.7][: len(poses)])  # nothing seen through walls
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    weigh(b)
+    assert b.leader.pose[0] == pytest.approx(SPOTS[1][0] + moved, abs=0.01)
 
 
 def test_a_robot_standing_still_adds_no_evidence(office) -> None:
@@ -111,7 +143,8 @@ def test_the_best_of_poses_that_all_fit_poorly_is_not_taken(office) -> None:
 
 def test_no_scan_and_no_landmark_weighs_more_than_one_over_epsilon(office) -> None:
     """A right pose in a room the map lacks fits 0.15 where a wrong one fits 0.5 (Intel in the
-    map of another run): f^30 would weigh 10¹⁵ against it in one scan; bounded, it is 1/ε = 20.
+    map of another run): unbounded, one scan would weigh 5·10⁴ against it (the 0.35 more of its
+    points on walls, at 2.8 to 1 each, 30 times over); bounded, it is 1/ε = 20.
     A landmark seen 90° off the bearing one pose predicts (misrecognised) weighs 1/ε too; with
     the bound off, the scan's full ratio returns."""
     b = bank(office, lambda poses: [0.15, 0.5][: len(poses)])
@@ -129,7 +162,9 @@ def test_no_scan_and_no_landmark_weighs_more_than_one_over_epsilon(office) -> No
     b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
     weigh(b)
     right, wrong = (h.weight for h in sorted(b.hypotheses, key=lambda h: h.pose[0]))
-    assert wrong / right == pytest.approx((0.5 / 0.15) ** 30, rel=1e-6)
+    p_hit, p_neither = unbounded.hit_probability, 1.0 - unbounded.hit_probability - \
+        unbounded.through_probability
+    assert wrong / right == pytest.approx((p_hit / p_neither) ** (30 * (0.5 - 0.15)), rel=1e-6)
 
 
 def following(**ambiguity: object) -> LocalizerConfig:

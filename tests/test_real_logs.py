@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.bench_real import DATA, datasets, run, score
+from benchmarks.bench_real import DATA, ROOT, datasets, run, score
 from fusion.io.intel_mat import in_order_times
 
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"real datasets not in {DATA}")
@@ -112,3 +112,30 @@ def test_aces_whole_log_keeps_tracking() -> None:
     assert h["matched"] >= 430
     assert h["lost"] <= 1.5 / 440
     assert h["ate_rmse_m"] < 0.08 and h["ate_max_m"] < 0.4
+
+
+def _held_out(name: str) -> dict:
+    """houghloc's row of the benchmark's held-out-map task on one log (the defaults)."""
+    from fusion.bench.spec import Method, Protocol, load_spec
+    from fusion.bench.task import Task, run_task
+
+    spec = load_spec(ROOT / "benchmarks" / "real.yaml")
+    found = next((r for r in spec.runs if r.name == name), None)
+    if found is None or not found.log.exists():
+        pytest.skip(f"{name} data missing")
+    result = run_task(Task(found, Method.HOUGHLOC, Protocol.HELD_OUT_MAP, {}))
+    assert result.row["status"] == "ok", result.row["error"]
+    return result.row
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name, lost, ate", [("intel", 0.134, 2.0), ("fhw", 0.04, 0.2)])
+def test_held_out_maps_are_not_left_for_look_alikes(name, lost, ate) -> None:
+    """In the map of the other part of the run, where it lacks rooms the robot passes through,
+    the robot is lost no more often than the tuned AMCL is (Intel: 13.4 % of the covered
+    poses), and not far: the poses a look-alike offers are weighed by what they see through
+    walls. Measured: Intel 9.3 % of the covered poses, ATE 1.3 m (5.1 m when only the points
+    on walls counted); fhw 2.4 %, 13 cm (7.5 %, 32 cm)."""
+    row = _held_out(name)
+    assert float(row["lost_covered_frac"]) <= lost
+    assert float(row["ate_rmse_m"]) < ate

@@ -5,7 +5,9 @@ up in the map's distance transform) is the manager's one measure of fit. Judged 
 recent scans', it tells a fix that moved the scan off the walls (a misfit), a fix the matcher
 could not vouch for but the scan does, and a prediction that still holds without any fix.
 The fraction seen through the map's walls tells a belief the scan contradicts from one the map
-merely does not explain (a room it lacks).
+merely does not explain (a room it lacks). Both make the scan's likelihood at a pose
+(:meth:`ScanFit.shares`, :func:`fusion.hypotheses.scan_log_likelihood`), which weighs followed
+hypotheses and judges the pose a local re-search found against the guess.
 """
 
 from __future__ import annotations
@@ -86,6 +88,28 @@ class ScanFit:
         seen = seen_directly(np.asarray(pose, float), points, self.map, kinds, reach,
                              self.config.global_match.visibility_margin)
         return 1.0 - float(np.mean(seen))
+
+    def shares(self, poses: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",)
+               ) -> NDArray[np.float64]:
+        """At each of ``poses`` (P×3), the shares of ``points`` (robot frame) on a wall that
+        the robot there sees directly (within the global matcher's inlier distance), seen
+        through a wall (:meth:`seen_through`), and neither: P×3, each row summing to 1."""
+        poses = np.asarray(poses, float).reshape(-1, 3)
+        out = np.zeros((len(poses), 3))
+        if len(points) == 0:
+            out[:, 2] = 1.0
+            return out
+        gm = self.config.global_match
+        walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
+        # float32 distances, compared in float32 as on_walls does
+        on = walls.at(poses, points[:, 0], points[:, 1]) <= np.float32(gm.inlier_distance)
+        reach = float(np.max(np.hypot(points[:, 0], points[:, 1])))
+        for k, pose in enumerate(poses):
+            seen = seen_directly(pose, points, self.map, kinds, reach, gm.visibility_margin)
+            out[k, 0] = np.mean(on[k] & seen)
+            out[k, 1] = 1.0 - np.mean(seen)
+        out[:, 2] = 1.0 - out[:, 0] - out[:, 1]
+        return out
 
     def accepted(self, guess_fit: float) -> None:
         """A scan's fix was accepted: its guess's fit is what tracking fits here."""

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from fusion.ambiguity.config import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
+from fusion.hypotheses import scan_log_likelihood
 from houghloc import (
     GlobalResult,
     HoughConfig,
@@ -57,8 +58,10 @@ class LocalSearch:
         ``gate_probability`` reaches: :func:`_heading_reach`). The pose found is returned
         when it clearly fits the scan better than the guess and about as well as tracking did,
         no other pose in the neighbourhood scores as well (a corridor leaves the position along
-        it open), and it is within reach of the odometry's motion since the last accepted fix
-        (``moved_since_fix``, m; None: no bound) (``local_reach_per_metre``)."""
+        it open), it is within reach of the odometry's motion since the last accepted fix
+        (``moved_since_fix``, m; None: no bound) (``local_reach_per_metre``), and the scan
+        makes it clearly likelier than the guess (:meth:`_likelier`: not by seeing through
+        walls)."""
         lines, radius = fix.lines, self.config.local_search_xy
         if (lines is None or len(lines) < 2 or lines.members.shape[0] != len(points)
                 or fix.grid is None or fix.accumulator is None or radius is None):
@@ -96,10 +99,29 @@ class LocalSearch:
                   and not _same_pose(f[1], pose)]
         if (fit < guess_fit + self.config.local_fit_gain
                 or fit < self.config.local_min_fit * typical or rivals
-                or not self._within_reach(pose, guess, moved_since_fix)):
+                or not self._within_reach(pose, guess, moved_since_fix)
+                or not self._likelier(pose, guess, points, kinds)):
             return Found(result)
         self.counts["local_fixes"] += 1
         return Found(result, np.asarray(pose, float), np.array(cov, dtype=float), fit)
+
+    def _likelier(self, pose: NDArray, guess: NDArray, points: NDArray,
+                  kinds: tuple[str, ...]) -> bool:
+        """Does the scan make ``pose`` likelier than the ``guess`` by the odds at which a followed
+        hypothesis is taken (``hypotheses.accept_probability``, 19 to 1), under the likelihood
+        that weighs them (:func:`scan_log_likelihood`)? Two poses, one scan, no prior between
+        them. A pose that puts more of the scan on walls by seeing through others is not (with
+        ``hypotheses`` None there is no likelihood: every pose is)."""
+        model = self.config.hypotheses
+        if model is None:
+            return True
+        log_l = scan_log_likelihood(self.fit.shares(np.array([pose, guess], float), points,
+                                                    kinds), model)
+        odds = model.accept_probability / (1.0 - model.accept_probability)
+        if log_l[0] - log_l[1] >= math.log(odds):
+            return True
+        self.counts["local_less_likely"] += 1
+        return False
 
     def _within_reach(self, pose: NDArray, guess: NDArray, moved: float | None) -> bool:
         """Is ``pose`` within ``local_reach_base`` + ``local_reach_per_metre`` × ``moved`` (the

@@ -366,7 +366,7 @@ class AmbiguityManager:
     def _new_bank(self) -> HypothesisBank:
         assert self.config.hypotheses is not None and self.make_tracker is not None
         return HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
-                              self.fit.fractions)
+                              self.fit.fractions, self.fit.shares)
 
     def _follow_belief(self, t: float) -> None:
         """Tracking given up: its belief becomes the first followed hypothesis. Scans that
