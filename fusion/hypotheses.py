@@ -16,14 +16,17 @@ person, a cupboard, a room the map lacks); ``s_hc`` are their shares of the scan
 often a point is of kind c at the right pose, measured at the reference poses of real logs
 (``hit_probability``, ``through_probability``): a pose that puts points on walls is likelier,
 one from which the robot would have seen through walls much less likely, and clutter, which a
-right pose meets too, weighs between them. ``n`` is the number of independent observations a
-scan is worth (its points on one wall err together, so a scan of 360 points is worth far fewer),
-and ε the probability that a scan taken at the right pose fits the map no better than at a wrong
-one (furniture moved, a room the map lacks): without it one scan could weigh 5·10⁴ against a right
-pose that puts 0.15 of it on walls where a wrong one puts 0.5 (Intel in a map of another run), and
-no scan should weigh more than 1/ε. Weights are updated only once
-the robot has moved since the last update (as AMCL does): scans from one place repeat one
-observation. Hypotheses that
+right pose meets too, weighs between them. Tracking's belief, carried by odometry, may be in a
+room the map lacks, where most points land on nothing: its likelihood allows for that
+(``mapped_probability``), so scans that land on nothing are no evidence against it, as they do
+not give tracking up; a pose a global match proposed claims that the map shows it. ``n`` is the
+number of independent observations a scan is worth (its points on one wall err together, so a
+scan of 360 points is worth far fewer), and ε the probability that a scan taken at the right
+pose fits the map no better than at a wrong one (furniture moved, a room the map lacks): without
+it one scan could weigh 5·10⁴ against a right pose that puts 0.15 of it on walls where a wrong
+one puts 0.5 (Intel in a map of another run), and no scan should weigh more than 1/ε. Weights
+are updated only once the robot has moved since the last update (as AMCL does): scans from one
+place repeat one observation. Hypotheses that
 meet are merged (their weights add), those whose weight falls below a probability are dropped,
 and one whose weight reaches the acceptance probability is the pose, provided its scans fit
 about as well as tracking's did: when no proposed pose is right, the best of them still gets
@@ -85,6 +88,19 @@ class HypothesisConfig(BaseModel):
         0.05, gt=0.0, lt=1.0, description="share of a scan's points seen through a wall at "
         "the right pose (glass, doors the map has closed, wall ends): a pose that sees more "
         "through walls is unlikely")
+    # Where the map does not show what the scan sees at the reference pose (the benchmark's
+    # uncovered poses on held-out maps), 0.03–0.31 of the points still lie on a wall and
+    # 0.003–0.06 behind one (0.135 and 0.022 pooled); the held-out maps show it at 0.49–0.95 of
+    # the poses (0.66 pooled).
+    mapped_probability: float = Field(
+        0.65, gt=0.0, lt=1.0, description="probability that the map shows what the robot sees "
+        "where it is (else it is in a room the map lacks, and its scans land on nothing)")
+    unmapped_hit_probability: float = Field(
+        0.15, gt=0.0, lt=1.0, description="share of a scan's points on a wall the robot sees "
+        "directly where the map does not show its surroundings")
+    unmapped_through_probability: float = Field(
+        0.02, gt=0.0, lt=1.0, description="share of a scan's points seen through a wall where "
+        "the map does not show the robot's surroundings")
     min_scans: int = Field(
         2, ge=1, le=_RECENT, description="weighed scans a hypothesis needs before it may be "
         "taken: the match's own views are what proposed it")
@@ -110,19 +126,36 @@ class HypothesisConfig(BaseModel):
         if self.hit_probability + self.through_probability >= 1.0:
             raise ValueError("hit_probability + through_probability must be below 1: some "
                              "points of a scan at the right pose lie on neither (clutter)")
+        if self.unmapped_hit_probability + self.unmapped_through_probability >= 1.0:
+            raise ValueError("unmapped_hit_probability + unmapped_through_probability must be "
+                             "below 1")
         return self
 
 
-def scan_log_likelihood(shares: NDArray[np.float64], config: HypothesisConfig
-                        ) -> NDArray[np.float64]:
-    """log L = n Σ_c s_c log p_c at each of P poses, from the P×3 ``shares`` s of a scan's points
-    on a wall seen directly, seen through a wall, and neither (:meth:`ScanFit.shares`): the
-    multinomial likelihood of n = ``independent_points`` observations whose kinds come with
-    probabilities p = (``hit_probability``, ``through_probability``, the rest) at the right
-    pose."""
+def scan_log_likelihood(shares: NDArray[np.float64], config: HypothesisConfig,
+                        belief: bool = False) -> NDArray[np.float64]:
+    """log L at each of P poses from the P×3 ``shares`` s of a scan's points on a wall seen
+    directly, seen through a wall, and neither (:meth:`ScanFit.shares`).
+
+    Where the map shows the robot's surroundings (probability m = ``mapped_probability``), the
+    kinds of n = ``independent_points`` observations come with probabilities p =
+    (``hit_probability``, ``through_probability``, the rest); where it does not (a room the
+    map lacks), with q = (``unmapped_hit_probability``, ``unmapped_through_probability``, the
+    rest): most points land on nothing. A pose proposed by matching the scan to the map claims
+    that the map shows it, L = m Πp_c^(n s_c); the filter's ``belief``, carried by odometry,
+    claims nothing, L = m Πp_c^(n s_c) + (1 − m) Πq_c^(n s_c): scans that land where the map
+    has nothing are no evidence against it (as they do not give tracking up), scans seen
+    through its walls are."""
+    s = np.asarray(shares, float)
+    n = config.independent_points
     p = np.array([config.hit_probability, config.through_probability,
                   1.0 - config.hit_probability - config.through_probability])
-    return config.independent_points * (np.asarray(shares, float) @ np.log(p))
+    mapped = math.log(config.mapped_probability) + n * (s @ np.log(p))
+    if not belief:
+        return mapped
+    q = np.array([config.unmapped_hit_probability, config.unmapped_through_probability,
+                  1.0 - config.unmapped_hit_probability - config.unmapped_through_probability])
+    return np.logaddexp(mapped, math.log(1.0 - config.mapped_probability) + n * (s @ np.log(q)))
 
 
 @dataclass
@@ -235,7 +268,9 @@ class HypothesisBank:
         fits = self._fit(poses, points)
         shares = (self._shares(poses, points) if self._shares is not None else
                   np.column_stack((fits, np.zeros(len(fits)), 1.0 - fits)))
-        self._weigh(scan_log_likelihood(shares, self.config))
+        beliefs = np.array([h.origin == "tracked" for h in self.hypotheses])
+        self._weigh(np.where(beliefs, scan_log_likelihood(shares, self.config, belief=True),
+                             scan_log_likelihood(shares, self.config)))
         for h, f in zip(self.hypotheses, fits, strict=True):
             h.fits.append(float(f))
             h.updates += 1

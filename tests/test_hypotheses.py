@@ -101,6 +101,31 @@ def test_a_pose_that_sees_through_walls_loses_to_one_that_fits_less(office) -> N
     assert b.leader.pose[0] == pytest.approx(SPOTS[1][0] + moved, abs=0.01)
 
 
+@pytest.mark.parametrize("belief_through, kept", [(0.0, True), (0.4, False)])
+def test_a_belief_in_a_room_the_map_lacks_is_kept_against_a_look_alike(office, belief_through,
+                                                                       kept) -> None:
+    """Tracking's belief puts none of the scan on walls: the robot is in a room the map lacks,
+    and its scans land on nothing. A look-alike a global match proposed puts 0.3 on walls and
+    sees 0.08 through them. Scans that land where the map has nothing are no evidence against
+    the belief, and it keeps the weight over three weighed scans; a belief that sees 0.4 of
+    each scan through the map's walls is contradicted, and the look-alike takes it."""
+    def at_belief(poses):  # the belief starts at SPOTS[0], x = 2; the look-alike at x = 6
+        return poses[:, 0] < 4.0
+
+    b = bank(office, lambda poses: np.where(at_belief(poses), 0.0, 0.3),
+             through=lambda poses: np.where(at_belief(poses), belief_through, 0.08))
+    b.seed(0.0, np.zeros(3), SPOTS[:1], [COV], [1.0], origin="tracked")
+    b.seed(0.0, np.zeros(3), SPOTS[1:2], [COV], [1.0])
+    for k in range(1, 4):
+        weigh(b, odom=(0.2 * k, 0.0, 0.0))
+    belief = next(h for h in b.hypotheses if h.origin == "tracked") if any(
+        h.origin == "tracked" for h in b.hypotheses) else None
+    if kept:
+        assert belief is not None and belief.weight > 0.99
+    else:
+        assert belief is None or belief.weight < 0.01
+
+
 def test_a_robot_standing_still_adds_no_evidence(office) -> None:
     """Scans from one place repeat one observation: no weighing until the robot has moved
     ``update_distance`` (or turned ``update_angle_deg``)."""

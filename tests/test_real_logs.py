@@ -129,13 +129,14 @@ def _held_out(name: str) -> dict:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name, lost, ate", [("intel", 0.134, 2.0), ("fhw", 0.04, 0.2)])
+@pytest.mark.parametrize("name, lost, ate", [("intel", 0.134, 0.183), ("fhw", 0.05, 0.2)])
 def test_held_out_maps_are_not_left_for_look_alikes(name, lost, ate) -> None:
-    """In the map of the other part of the run, where it lacks rooms the robot passes through,
-    the robot is lost no more often than the tuned AMCL is (Intel: 13.4 % of the covered
-    poses), and not far: the poses a look-alike offers are weighed by what they see through
-    walls. Measured: Intel 9.3 % of the covered poses, ATE 1.3 m (5.1 m when only the points
-    on walls counted); fhw 2.4 %, 13 cm (7.5 %, 32 cm)."""
+    """In the map of the other part of the run, which lacks rooms the robot passes through, the
+    robot is lost no more often than the tuned AMCL is there, and on Intel no further (13.4 % of
+    the covered poses, 18 cm ATE): a look-alike is weighed by what the robot would see through
+    walls there, and scans that land where the map has nothing are no evidence against the
+    belief. Measured: Intel 1.9 % of the covered poses, ATE 10 cm (12.5 %, 5.1 m when only the
+    points on walls counted); fhw 3.9 %, 15 cm (7.5 %, 32 cm)."""
     row = _held_out(name)
     assert float(row["lost_covered_frac"]) <= lost
     assert float(row["ate_rmse_m"]) < ate

@@ -109,16 +109,19 @@ class LocalSearch:
                   kinds: tuple[str, ...]) -> bool:
         """Does the scan make ``pose`` likelier than the ``guess`` by the odds at which a followed
         hypothesis is taken (``hypotheses.accept_probability``, 19 to 1), under the likelihood
-        that weighs them (:func:`scan_log_likelihood`)? Two poses, one scan, no prior between
-        them. A pose that puts more of the scan on walls by seeing through others is not (with
-        ``hypotheses`` None there is no likelihood: every pose is)."""
+        that weighs them (:func:`scan_log_likelihood`: the guess is the filter's belief, which
+        may be where the map has nothing)? Two poses, one scan, no prior between them. A pose
+        that puts more of the scan on walls by seeing through others is not, nor one that
+        only explains what the map lacks around the guess (with ``hypotheses`` None there is
+        no likelihood: every pose is)."""
         model = self.config.hypotheses
         if model is None:
             return True
-        log_l = scan_log_likelihood(self.fit.shares(np.array([pose, guess], float), points,
-                                                    kinds), model)
+        shares = self.fit.shares(np.array([pose, guess], float), points, kinds)
+        found = scan_log_likelihood(shares[:1], model)[0]
+        believed = scan_log_likelihood(shares[1:], model, belief=True)[0]
         odds = model.accept_probability / (1.0 - model.accept_probability)
-        if log_l[0] - log_l[1] >= math.log(odds):
+        if found - believed >= math.log(odds):
             return True
         self.counts["local_less_likely"] += 1
         return False
