@@ -193,13 +193,13 @@ class HypothesisBank:
     def __init__(self, map: SegmentMap, config: HypothesisConfig,
                  make_tracker: Callable[[NDArray[np.float64], NDArray[np.float64]], PoseTracker],
                  fit: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
-                 shares: Callable[[NDArray[np.float64], NDArray[np.float64]],
-                                  NDArray[np.float64]] | None = None) -> None:
+                 shares: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
+                 ) -> None:
         """``make_tracker(pose, cov)``: a filter at a pose; ``fit(poses, points)``: the fraction
         of the points (robot frame) on walls at each of the P×3 poses, what the verdict compares
         with tracking's; ``shares(poses, points)``: P×3, the shares of the points on a wall seen
-        directly, through a wall and neither, what the weights follow (:func:`scan_log_likelihood`;
-        None: the fraction on walls and none through them)."""
+        directly, through a wall and neither, what the weights follow
+        (:func:`scan_log_likelihood`)."""
         self.map = map
         self.config = config
         self._make_tracker = make_tracker
@@ -266,8 +266,7 @@ class HypothesisBank:
         self._last_update = np.asarray(odom, float).copy()
         poses = np.array([h.pose for h in self.hypotheses])
         fits = self._fit(poses, points)
-        shares = (self._shares(poses, points) if self._shares is not None else
-                  np.column_stack((fits, np.zeros(len(fits)), 1.0 - fits)))
+        shares = self._shares(poses, points)
         beliefs = np.array([h.origin == "tracked" for h in self.hypotheses])
         self._weigh(np.where(beliefs, scan_log_likelihood(shares, self.config, belief=True),
                              scan_log_likelihood(shares, self.config)))
