@@ -84,10 +84,7 @@ class ScanFit:
         than ``visibility_margin`` before the point (:func:`seen_directly`)."""
         if len(points) == 0:
             return 0.0
-        reach = float(np.max(np.hypot(points[:, 0], points[:, 1])))
-        seen = seen_directly(np.asarray(pose, float), points, self.map, kinds, reach,
-                             self.config.global_match.visibility_margin)
-        return 1.0 - float(np.mean(seen))
+        return 1.0 - float(np.mean(self._seen(pose, points, kinds)))
 
     def shares(self, poses: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",)
                ) -> NDArray[np.float64]:
@@ -103,13 +100,20 @@ class ScanFit:
         walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
         # float32 distances, compared in float32 as on_walls does
         on = walls.at(poses, points[:, 0], points[:, 1]) <= np.float32(gm.inlier_distance)
-        reach = float(np.max(np.hypot(points[:, 0], points[:, 1])))
         for k, pose in enumerate(poses):
-            seen = seen_directly(pose, points, self.map, kinds, reach, gm.visibility_margin)
+            seen = self._seen(pose, points, kinds)
             out[k, 0] = np.mean(on[k] & seen)
             out[k, 1] = 1.0 - np.mean(seen)
         out[:, 2] = 1.0 - out[:, 0] - out[:, 1]
         return out
+
+    def _seen(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...]
+              ) -> NDArray[np.bool_]:
+        """Which of the (non-empty) ``points`` the robot at ``pose`` sees directly: the walls
+        within the farthest point's range are tried."""
+        reach = float(np.max(np.hypot(points[:, 0], points[:, 1])))
+        return seen_directly(np.asarray(pose, float), points, self.map, kinds, reach,
+                             self.config.global_match.visibility_margin)
 
     def accepted(self, guess_fit: float) -> None:
         """A scan's fix was accepted: its guess's fit is what tracking fits here."""
