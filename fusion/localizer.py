@@ -20,8 +20,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.ambiguity import AmbiguityManager, Verdict
 from fusion.config import LocalizerConfig, SensorConfig
+from fusion.corridor import CorridorMeasurement, CorridorPlacement
 from fusion.ekf import UpdateOutcome
 from fusion.events import MAX_POSE_COORDINATE
+from fusion.hypotheses import HypothesisConfig
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
 from fusion.scan_odometry import ScanOdometry
@@ -48,6 +50,8 @@ class Estimate:
     status: ScanStatus
     correction: ScanCorrection | None = None
     outcome: UpdateOutcome | None = None
+    along: CorridorMeasurement | None = None
+    """the corridor fix placed along its corridor by the scan's points, when it was"""
 
 
 @dataclass
@@ -59,6 +63,7 @@ class LocalizerStats:
 
     scans: int = 0
     partial_rank: int = 0
+    placed_along: int = 0
     late: int = 0
     stray_timestamps: int = 0
     invalid_odometry: int = 0
@@ -128,6 +133,8 @@ class Localizer:
             warm_up_scan_matching()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
                                         make_tracker=self._tracker_at)
+        self.corridor = CorridorPlacement(
+            self.manager.fit, self.config.ambiguity.hypotheses or HypothesisConfig())
         # the map's look-ups for global matching, now rather than on the scan that first needs
         # them (the angle index and distance transform of a building take tens of ms)
         for kinds in {s.hough.reference_kinds for s in self.config.sensors.values()}:
@@ -283,7 +290,7 @@ class Localizer:
         self.stats.seconds["hough"] += t1 - t0
         kinds = cfg.hough.reference_kinds
         verdict = self.manager.judge(guess, fix, points, kinds, cfg.min_fix_lines)
-        status, outcome = self._use_fix(t, fix, verdict)
+        status, outcome, along = self._use_fix(t, fix, verdict, guess_cov, points, cfg)
         t2 = perf_counter()
         self.stats.seconds["update"] += t2 - t1
         decision = self.manager.re_search(t, status, verdict, guess, guess_cov, points, fix,
@@ -293,8 +300,8 @@ class Localizer:
                                            + perf_counter() - t2)
             if (decision.reset_pose is not None and decision.reset_cov is not None
                     and self.tracker.reset(decision.reset_pose, decision.reset_cov)):
-                status, outcome = ScanStatus.RE_SEARCHED, None
-        estimate = self._finish(t, status, fix, outcome, sensor, points)
+                status, outcome, along = ScanStatus.RE_SEARCHED, None, None
+        estimate = self._finish(t, status, fix, outcome, sensor, points, along=along)
         refs = fix.references
         # the manager gives tracking up here, when the scans stop giving usable fixes
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
@@ -319,19 +326,28 @@ class Localizer:
         self.stats.seconds["scan odometry"] = (self.stats.seconds.get("scan odometry", 0.0)
                                                + perf_counter() - t0)
 
-    def _use_fix(self, t: float, fix: ScanCorrection, verdict: Verdict
-                 ) -> tuple[ScanStatus, UpdateOutcome | None]:
+    def _use_fix(self, t: float, fix: ScanCorrection, verdict: Verdict, guess_cov: NDArray,
+                 points: NDArray, cfg: SensorConfig
+                 ) -> tuple[ScanStatus, UpdateOutcome | None, CorridorMeasurement | None]:
         """Update the filter with a tracking fix when the manager's ``verdict`` says it can be
-        trusted; the status and the filter's outcome (None when the fix was not offered)."""
+        trusted (a corridor fix placed along its corridor by the scan's points where they
+        can); the status, the filter's outcome (None when the fix was not offered) and the
+        placement along the corridor (None when there was none)."""
         if not verdict.use:
             assert verdict.status is not None
-            return verdict.status, None
+            return verdict.status, None, None
         newest = self.tracker.time
         if newest is not None and t < newest:
             self.stats.late += 1
-        outcome = self.tracker.apply(t, fix.pose, fix.cov, fix.observable)
+        pose, cov = fix.pose, fix.cov
+        basis: NDArray | None = fix.observable
+        along = self.corridor.complete(fix, guess_cov, points, cfg.hough)
+        if along is not None:
+            pose, cov, basis = along.pose, along.cov, None
+            self.stats.placed_along += 1
+        outcome = self.tracker.apply(t, pose, cov, basis)
         self.stats.partial_rank += fix.rank < 3
-        return ScanStatus(outcome.status), outcome
+        return ScanStatus(outcome.status), outcome, along
 
     def on_landmark(self, t: float, label: str, bearing: float) -> None:
         """A recognised landmark (e.g. a goal by its colour) at a bearing: while the map's
@@ -364,13 +380,14 @@ class Localizer:
 
     def _finish(self, t: float, status: ScanStatus, fix: ScanCorrection | None,
                 outcome: UpdateOutcome | None, sensor: str, points: NDArray,
-                leading: tuple[NDArray, NDArray] | None = None) -> Estimate:
+                leading: tuple[NDArray, NDArray] | None = None,
+                along: CorridorMeasurement | None = None) -> Estimate:
         """The estimate at ``t``: the filter's, or while several hypotheses are followed the
         ``leading`` one's (the likeliest pose; its status says it is not yet taken)."""
         self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
         at_t = leading if leading is not None else self.tracker.pose_at(t)
         pose, cov = at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
-        estimate = Estimate(t, pose, cov, status, fix, outcome)
+        estimate = Estimate(t, pose, cov, status, fix, outcome, along)
         self.logger.log_scan(t, self.stats.scans - 1, sensor, points, fix, estimate)
         return estimate
 

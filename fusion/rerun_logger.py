@@ -25,6 +25,7 @@ Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D trans
     hough/matches                             LineStrips2D, observed line → its reference point
     metrics/innovation/{x,y,theta}, metrics/nis, metrics/sigma/{x,y,theta}, metrics/matches,
     metrics/error/{position,heading}          Scalars (errors: truth interpolated at the scan)
+    metrics/along_corridor                    Scalars (m a corridor fix was moved along it)
     log/state                                 TextLog: the ambiguity manager's state and reason
     log/scan                                  TextLog: why a scan was not used (not "accepted")
     global/hypotheses                         Arrows2D with the scores as labels
@@ -107,7 +108,7 @@ FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
 UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulation's
 
 METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
-           "sigma/theta", "matches", "error/position", "error/heading")
+           "sigma/theta", "matches", "error/position", "error/heading", "along_corridor")
 _DEGREES = np.array([1.0, 1.0, 180.0 / math.pi])
 
 
@@ -233,6 +234,9 @@ class RerunLogger:
                                    + (f": {reason}" if reason else "")],
                 level=["DEBUG" if estimate.status == ScanStatus.NO_FIX else "WARN"])
         self._metrics(t, index, pose, cov, correction, getattr(estimate, "outcome", None))
+        along = getattr(estimate, "along", None)
+        if along is not None:
+            self._scalar("along_corridor", t, index, along.offset)
         self._scans_logged += 1
         self._batched_scans += 1
         if (self._batched_scans >= BATCH_SCANS

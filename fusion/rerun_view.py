@@ -30,7 +30,8 @@ SERIES_COLOUR = (220, 220, 220, 255)
 SERIES_NAMES = {"error/position": "position (m)", "error/heading": "heading (°)",
                 "sigma/x": "σx (m)", "sigma/y": "σy (m)", "sigma/theta": "σθ (°)",
                 "innovation/x": "x (m)", "innovation/y": "y (m)", "innovation/theta": "θ (°)",
-                "nis": "NIS", "matches": "lines matched"}
+                "nis": "NIS", "matches": "lines matched",
+                "along_corridor": "placed along the corridor (m)"}
 STATUS_COLOURS = {
     ScanStatus.ACCEPTED: (60, 200, 90, 255),
     ScanStatus.REJECTED: (230, 60, 50, 255),
@@ -155,7 +156,9 @@ def default_blueprint() -> rrb.Blueprint:
                 rrb.Tabs(series("σ of the estimate", "metrics/sigma", legend),
                          series("Innovation", "metrics/innovation", legend),
                          series("NIS (normalised innovation squared)", "metrics/nis", alone),
-                         series("Lines matched", "metrics/matches", alone)),
+                         series("Lines matched", "metrics/matches", alone),
+                         series("Corridor fixes placed along the corridor",
+                                "metrics/along_corridor", alone)),
                 row_shares=[2, 1, 1],
             ),
             column_shares=[11, 9],
