@@ -189,12 +189,10 @@ class OdometryMotionModel:
     def noise(self, delta: Pose) -> NDArray[np.float64]:
         """Q: the 3×3 covariance of the increment δ = (dx, dy, dθ), in the robot frame.
 
-        δ is decomposed into (rot1, trans, rot2), rot1 the chord's direction and rot2 = dθ −
-        rot1; each gets an independent variance from the α's, linear in the amounts: the
-        rotations' in |dθ|/2 each (an arc between readings, below), the translation's in trans.
-        Q = J diag(σ²) Jᵀ with J = ∂δ/∂(rot1, trans, rot2), plus the floor terms. Backward
-        driving is handled as a negative translation along the heading (not as a half turn,
-        which would create a large spurious rotation noise).
+        δ is decomposed into (rot1, trans, rot2), each gets an independent variance from the
+        α's (linear in the amounts), and Q = J diag(σ²) Jᵀ with J = ∂δ/∂(rot1, trans, rot2),
+        plus the floor terms. Backward driving is handled as a negative translation along the
+        heading (not as a half turn, which would create a large spurious rotation noise).
         """
         c = self.config
         dx, dy, dth = float(delta[0]), float(delta[1]), float(delta[2])
@@ -207,14 +205,11 @@ class OdometryMotionModel:
             rot1, signed_trans = math.atan2(dy, dx), trans
             if abs(rot1) > math.pi / 2:  # driving backwards
                 rot1, signed_trans = wrap_scalar(rot1 - math.pi), -trans
-        # Between two readings the robot drives an arc: it turns by dθ, half of it before the
-        # chord's direction and half after, so the rotations' noise is that of |dθ|. Read as
-        # turn, drive, turn, a reading's sideways jitter (a centimetre or two on some robots'
-        # odometry) would be two quarter-turns, and the heading's variance would grow with it.
-        turn = 0.5 * abs(dth)
+        rot2 = wrap_scalar(dth - rot1)
         # Translation's heading noise is split over the two rotations: α₂² per metre in total.
-        var_rot1 = var_rot2 = c.alpha1**2 * turn + 0.5 * c.alpha2**2 * trans
-        var_trans = c.alpha3**2 * trans + c.alpha4**2 * 2.0 * turn
+        var_rot1 = c.alpha1**2 * abs(rot1) + 0.5 * c.alpha2**2 * trans
+        var_trans = c.alpha3**2 * trans + c.alpha4**2 * (abs(rot1) + abs(rot2))
+        var_rot2 = c.alpha1**2 * abs(rot2) + 0.5 * c.alpha2**2 * trans
         # Q = J diag(var_rot1, var_trans, var_rot2) Jᵀ, J = ∂(dx, dy, dθ)/∂(rot1, trans, rot2)
         # for dx = t cos r1, dy = t sin r1, dθ = r1 + r2; written out, as this runs per reading.
         cos1, sin1 = math.cos(rot1), math.sin(rot1)

@@ -84,25 +84,6 @@ def test_noise_does_not_depend_on_the_odometry_rate():
     assert np.all(np.linalg.eigvalsh(model.noise([0.0, 0.0, 0.5])) > 0)  # turn on the spot
 
 
-def arc(length: float, turn: float) -> list[float]:
-    """The increment of driving ``length`` m along an arc that turns by ``turn`` rad."""
-    chord = length if turn == 0.0 else 2.0 * length / turn * math.sin(turn / 2.0)
-    return [chord * math.cos(turn / 2.0), chord * math.sin(turn / 2.0), turn]
-
-
-def test_sideways_jitter_between_readings_is_not_a_turn():
-    """Some robots' odometry jitters a centimetre or two sideways between readings (seattle's
-    does): such a reading's heading variance is a straight one's of the same length, not two
-    quarter-turns'; a turn's is the same in one reading as in fifty."""
-    model = OdometryMotionModel()
-    sideways, ahead = model.noise([0.0, 0.015, 0.0]), model.noise([0.015, 0.0, 0.0])
-    assert sideways[2, 2] == pytest.approx(ahead[2, 2], rel=1e-12)
-    assert math.degrees(math.sqrt(sideways[2, 2])) < 0.5
-    whole = model.noise(arc(1.0, 0.5))
-    pieces = sum(model.noise(arc(0.02, 0.01)) for _ in range(50))
-    assert pieces[2, 2] == pytest.approx(whole[2, 2], rel=1e-2)  # the chord is a bit short
-
-
 def test_backward_driving_is_not_a_half_turn():
     model = OdometryMotionModel()
     backward, forward = model.noise([-0.3, 0.0, 0.0]), model.noise([0.3, 0.0, 0.0])
