@@ -84,7 +84,7 @@ class ScanFit:
         than ``visibility_margin`` before the point (:func:`seen_directly`)."""
         if len(points) == 0:
             return 0.0
-        return 1.0 - float(np.mean(self._seen(pose, points, kinds)))
+        return 1.0 - float(np.mean(self._seen(pose, points, kinds, _reach(points))))
 
     def shares(self, poses: NDArray, points: NDArray, kinds: tuple[str, ...] = ("wall",)
                ) -> NDArray[np.float64]:
@@ -100,18 +100,18 @@ class ScanFit:
         walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
         # float32 distances, compared in float32 as on_walls does
         on = walls.at(poses, points[:, 0], points[:, 1]) <= np.float32(gm.inlier_distance)
+        reach = _reach(points)  # the same points at every pose
         for k, pose in enumerate(poses):
-            seen = self._seen(pose, points, kinds)
+            seen = self._seen(pose, points, kinds, reach)
             out[k, 0] = np.mean(on[k] & seen)
             out[k, 1] = 1.0 - np.mean(seen)
         out[:, 2] = 1.0 - out[:, 0] - out[:, 1]
         return out
 
-    def _seen(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...]
+    def _seen(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...], reach: float
               ) -> NDArray[np.bool_]:
         """Which of the (non-empty) ``points`` the robot at ``pose`` sees directly: the walls
-        within the farthest point's range are tried."""
-        reach = float(np.max(np.hypot(points[:, 0], points[:, 1])))
+        within ``reach`` (the farthest point's range, :func:`_reach`) are tried."""
         return seen_directly(np.asarray(pose, float), points, self.map, kinds, reach,
                              self.config.global_match.visibility_margin)
 
@@ -206,3 +206,8 @@ class ScanFit:
         of the wrong ones leads too, but fits visibly worse than tracking did."""
         typical = float(np.median(self.used)) if self.used else 1.0
         return mean_fit >= self.config.tie_min_fit * typical
+
+
+def _reach(points: NDArray) -> float:
+    """The range of the farthest of (non-empty) robot-frame ``points``."""
+    return float(np.max(np.hypot(points[:, 0], points[:, 1])))
