@@ -323,6 +323,10 @@ class Localizer:
                 self.logger.log_odometry(t, correction.pose)  # the odometry path shows it
             else:
                 scan_odometry.skip(t, points)
+        # the next scan's match replaces the wheels' noise since this one: the filter keeps
+        # its history back to here
+        since = scan_odometry.reference_time
+        self.tracker.hold(since, since + self.config.scan_odometry.max_interval)
         self.stats.seconds["scan odometry"] = (self.stats.seconds.get("scan odometry", 0.0)
                                                + perf_counter() - t0)
 

@@ -80,6 +80,10 @@ class ScanOdometryConfig(BaseModel):
         0.5, gt=0, description="m; a match farther from the wheels' increment is not used")
     max_correction_theta_deg: float = Field(20.0, gt=0, description="°; a match turned farther "
                                             "from the wheels' increment is not used")
+    max_interval: float = Field(
+        60.0, gt=0, description="s; a scan this long after the previous one is not matched to "
+        "it but becomes the reference (the odometry history since the previous scan is kept "
+        "for the match, one entry per wheel reading)")
     wheel_scale_sigma: float | None = Field(
         None, gt=0, description="the wheels' distance scale is estimated online from the "
         "matches, from 1 ± this (how far from nominal a wheel's radius may be, e.g. 0.1; None: "
@@ -131,6 +135,11 @@ class ScanOdometry:
         self._robust_limit = (math.inf if config.robust_quantile is None
                               else gate_threshold(config.robust_quantile, 3))
 
+    @property
+    def reference_time(self) -> float:
+        """The time of the scan the next one is matched to (−∞ before the first)."""
+        return self._time
+
     def on_wheels(self, x: float, y: float, theta: float,
                   unmeasured: float = 0.0) -> tuple[float, float, float]:
         """The corrected odometry pose for a wheel reading (``unmeasured``: seconds before it
@@ -147,7 +156,7 @@ class ScanOdometry:
         reference. ``points``: finite, robot frame (the Localizer has cleaned them)."""
         if self._wheels is None or len(points) < self.config.min_points:
             return None
-        if self._points is None:
+        if self._points is None or t - self._time > self.config.max_interval:
             self.skip(t, points)
             return None
         assert self._anchor is not None and self._anchor_wheels is not None  # set with _points

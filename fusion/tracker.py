@@ -128,6 +128,7 @@ class PoseTracker:
         self._nodes: deque[_Node] = deque()
         self._tail = 0  # provisional nodes: measurements newer than the newest odometry
         self._trim_length = 0  # trim when the history has this many nodes
+        self._held: tuple[float, float] | None = None  # (t, until): see :meth:`hold`
 
     @classmethod
     def from_config(cls, config: FilterConfig, initial_pose: ArrayLike,
@@ -368,6 +369,18 @@ class PoseTracker:
         self._trim()
         return outcome
 
+    def hold(self, t: float, until: float) -> None:
+        """Keep the node at t, and the history after it, while the newest node is no later
+        than ``until``, however much longer ago than ``history_seconds`` t becomes.
+
+        A scan-odometry correction (:meth:`correct_odometry`) measures the whole motion since
+        the previous scan and can replace the readings' noise with its own only while the node
+        of that scan is kept. Scans come seconds apart on some robots (a log that records a
+        scan only after the robot moved); without the hold the readings in between kept the
+        wheels' noise, and the heading's σ grew to tens of degrees that the match had measured
+        to a fraction of one. ``until`` bounds the history kept when no scan comes."""
+        self._held = (t, until)
+
     def reset(self, pose: ArrayLike, cov: ArrayLike) -> bool:
         """Re-initialise (global relocalisation): the estimate at the newest odometry time
         becomes (pose, cov); the history before it is forgotten, so older measurements are
@@ -486,13 +499,13 @@ class PoseTracker:
         return max(0, bisect_right(nodes, nodes[-1].t - self.history_seconds, key=_node_time) - 1)
 
     def _trim(self) -> None:
-        """Forget nodes no longer needed to cover ``history_seconds`` before the newest node.
-        The oldest kept node is the newest computed one at or before that horizon, so trimming
-        costs no prediction while estimates are asked for (every scan asks); if none was asked
-        for over a whole history (odometry alone), the node at the horizon is computed. If the
-        odometry stalls for longer than the history, the oldest provisional node becomes the
-        anchor for the next reading, so a stream of measurements without odometry does not
-        grow the history without bound.
+        """Forget nodes no longer needed to cover ``history_seconds`` before the newest node,
+        or the held node (:meth:`hold`) if older. The oldest kept node is the newest computed
+        one at or before that horizon, so trimming costs no prediction while estimates are
+        asked for (every scan asks); if none was asked for over a whole history (odometry
+        alone), the node at the horizon is computed. If the odometry stalls for longer than the
+        history, the oldest provisional node becomes the anchor for the next reading, so a
+        stream of measurements without odometry does not grow the history without bound.
         """
         nodes = self._nodes
         if len(nodes) < self._trim_length:  # a few nodes at a time: each look costs a search
@@ -502,6 +515,9 @@ class PoseTracker:
         if len(nodes) < 2 or nodes[1].t > horizon:
             return
         last = self._oldest()
+        held = self._held
+        if held is not None and nodes[0].t <= held[0] < nodes[last].t and nodes[-1].t <= held[1]:
+            last = bisect_right(nodes, held[0], key=_node_time) - 1
         keep = last
         while keep > 0 and nodes[keep].x is None:
             keep -= 1

@@ -196,6 +196,57 @@ def test_a_measured_step_replaces_the_readings_since_the_previous_scan() -> None
     assert np.allclose(tracker.cov, before + q)
 
 
+def turning_on_the_spot(tracker: PoseTracker, t0: float, t1: float) -> None:
+    """Readings every 50 ms from t0 to t1, each a 0.01 rad turn on the spot."""
+    for k, t in enumerate(np.arange(t0, t1 + 1e-9, 0.05)):
+        tracker.on_odometry(float(t), 0.0, 0.0, 0.01 * k)
+
+
+def test_a_held_scan_keeps_its_step_measurable_beyond_the_history() -> None:
+    """Scans 5 s apart, a history of 2 s: with the previous scan held, the correction still
+    replaces the 100 readings since it by one step with the matched covariance (P grows by
+    exactly Q; no translation, so F = I and G Q Gᵀ = Q for this Q). Queries keep the history's
+    reach: the held scan's estimate is not offered any more."""
+    q = np.diag([1e-6, 1e-6, 1e-7])
+    held = PoseTracker(np.zeros(3), np.diag([1e-4, 1e-4, 1e-5]), history_seconds=2.0)
+    held.on_odometry(0.0, 0.0, 0.0, 0.0)
+    held.hold(0.0, 60.0)
+    turning_on_the_spot(held, 0.05, 5.0)
+    assert held.pose_at(0.0) is None
+    assert held.correct_odometry(5.0, (0.0, 0.0, 1.0), since=0.0, step_cov=q)
+    assert np.allclose(held.cov, np.diag([1e-4, 1e-4, 1e-5]) + q)
+    assert np.allclose(held.pose, (0.0, 0.0, 1.0))
+
+
+def test_without_the_hold_or_after_it_the_readings_keep_the_wheels_noise() -> None:
+    """The same scans unheld, or held only until 3 s: the held scan is forgotten, the
+    correction moves the pose but the turn's noise stays the wheels' (1 rad at α₁ = 0.05 rad
+    per √rad: σ ≈ 2.9°, against the match's 0.02°)."""
+    q = np.diag([1e-6, 1e-6, 1e-7])
+    for until in (None, 3.0):
+        tracker = PoseTracker(np.zeros(3), np.diag([1e-4, 1e-4, 1e-5]), history_seconds=2.0)
+        tracker.on_odometry(0.0, 0.0, 0.0, 0.0)
+        if until is not None:
+            tracker.hold(0.0, until)
+        turning_on_the_spot(tracker, 0.05, 5.0)
+        assert tracker.correct_odometry(5.0, (0.0, 0.0, 1.0), since=0.0, step_cov=q)
+        assert np.allclose(tracker.pose, (0.0, 0.0, 1.0))
+        assert math.degrees(math.sqrt(tracker.cov[2, 2])) > 2.5
+
+
+def test_a_scan_too_long_after_the_previous_becomes_the_reference_unmatched() -> None:
+    """``max_interval``: the history since so old a scan is not kept, so it is not matched."""
+    pose = np.array([3.0, 2.0, 0.1])
+    config = CONFIG.model_copy(update={"max_interval": 10.0})
+    odometry = ScanOdometry(config, OdometryMotionModel(WHEELS))
+    odometry.on_wheels(*pose)
+    assert odometry.match(0.0, scan_points(ROOM, pose)) is None  # the first is the reference
+    assert odometry.reference_time == 0.0
+    assert odometry.match(5.0, scan_points(ROOM, pose)) is not None
+    assert odometry.match(20.0, scan_points(ROOM, pose)) is None
+    assert odometry.reference_time == 20.0 and odometry.unmatched == 0
+
+
 def test_a_correction_older_than_the_newest_reading_is_refused() -> None:
     tracker = tracker_with_readings((0.0, 0, 0, 0), (0.2, 0.2, 0, 0))
     assert not tracker.correct_odometry(0.1, (5.0, 0.0, 0.0))
