@@ -66,6 +66,11 @@ class OdometryMotionConfig(BaseModel):
     jump_min_dt: float = Field(
         0.05, gt=0, description="shorter intervals are judged as this long (timestamp jitter)"
     )
+    max_stall: float = Field(
+        1.0, ge=0, description="s; an odometry that repeated its reading for up to this long "
+        "may have stalled while the robot moved: the motion its next reading reports is judged "
+        "over the stall too (a turn lumped into one reading is not a jump)"
+    )
 
 
 class OdometryCalibration:

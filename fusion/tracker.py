@@ -129,6 +129,7 @@ class PoseTracker:
         self._tail = 0  # provisional nodes: measurements newer than the newest odometry
         self._trim_length = 0  # trim when the history has this many nodes
         self._held: tuple[float, float] | None = None  # (t, until): see :meth:`hold`
+        self._reading_since = -math.inf  # when the odometry first gave its newest reading
 
     @classmethod
     def from_config(cls, config: FilterConfig, initial_pose: ArrayLike,
@@ -205,6 +206,7 @@ class PoseTracker:
         odom = np.array([x, y, theta], dtype=float)
         if not self._nodes:
             self._nodes.append(_Node(t, odom, self._x, self._p, _ZERO3, _ZERO33))
+            self._reading_since = t
             return
         lo_index = len(self._nodes) - 1 - self._tail
         lo = self._nodes[lo_index]
@@ -215,7 +217,12 @@ class PoseTracker:
             return
         dt = t - lo.t
         total = increment(lo.odom, odom)
-        jump = self.motion.is_jump(total, dt)
+        # readings that repeat one pose may be a stalled odometry: the motion of the reading
+        # that ends the stall happened over the stall too (up to ``max_stall``)
+        stalled = min(max(lo.t - self._reading_since, 0.0), self.motion.config.max_stall)
+        jump = self.motion.is_jump(total, dt + stalled)
+        if not np.array_equal(odom, lo.odom):
+            self._reading_since = t
         self.counts.predictions += 1
         self.counts.odometry_jumps += int(jump)
         if self._tail == 0:  # the common case: append and predict

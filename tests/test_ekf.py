@@ -359,6 +359,34 @@ def test_odometry_jump_is_flagged_and_replaced_by_zero_motion():
     assert tracker.counts.odometry_jumps == 2
 
 
+def test_a_turn_lumped_after_a_stalled_odometry_is_motion_not_a_jump():
+    """fhw's odometry repeats one reading for 0.3 s, then reports a 75° turn in 0.16 s (8 rad/s,
+    beyond twice the 3 rad/s limit). Over the stall too it is 2.6 rad/s: the robot turned, and
+    the filter follows. Without the stall the same reading is a jump; after a standstill longer
+    than ``max_stall`` a teleport is still one."""
+    turn = math.radians(75.0)
+    stalled = PoseTracker([0.0, 0.0, 0.0], P0)
+    for t in (0.0, 0.16, 0.32):
+        stalled.on_odometry(t, 0.0, 0.0, 0.0)
+    stalled.on_odometry(0.48, 0.0, 0.0, turn)
+    assert stalled.counts.odometry_jumps == 0
+    assert stalled.pose[2] == pytest.approx(turn)
+
+    moving = PoseTracker([0.0, 0.0, 0.0], P0)
+    for k, t in enumerate((0.0, 0.16, 0.32)):
+        moving.on_odometry(t, 0.0, 0.0, 0.05 * k)
+    moving.on_odometry(0.48, 0.0, 0.0, 0.1 + turn)
+    assert moving.counts.odometry_jumps == 1
+    assert moving.pose[2] == pytest.approx(0.1)
+
+    standing = PoseTracker([0.0, 0.0, 0.0], P0)
+    for k in range(601):  # ten minutes at rest, then the odometry is reset 10 m away
+        standing.on_odometry(k * 1.0, 0.0, 0.0, 0.0)
+    standing.on_odometry(600.16, 10.0, 0.0, 0.0)
+    assert standing.counts.odometry_jumps == 1
+    np.testing.assert_allclose(standing.pose, 0.0, atol=1e-12)
+
+
 def test_unmeasured_motion_spreads_the_estimate_over_the_robots_reach():
     """A reading that says its increment misses 3 s of motion (a hole in a log) keeps the
     estimate where the wheels say, spread by the jump covariance of those 3 s; the same reading
