@@ -62,7 +62,7 @@ from houghloc.localize import scan_reach
 from houghloc.map_lookup import (
     AngleIndex,
     angle_index,
-    inside_map,
+    map_box,
     segment_spans,
     wall_distance,
 )
@@ -77,6 +77,7 @@ from houghloc.match_result import (
     valid,
 )
 from houghloc.pose_hypotheses import (
+    candidate_count,
     observed_pairs,
     pair_hypotheses,
     top_indices,
@@ -200,17 +201,14 @@ def _match_pairs(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
     index = _pair_index(map, kinds, config)
     if len(index.delta) == 0:
         return GlobalResult(reason="the map has no two non-parallel lines")
-    poses = pair_hypotheses(lines, pair_i, pair_k, index, config, near)
-    generated = len(poses)
-    if near is not None:
-        poses = poses[near.contains(poses)]
-    poses = poses[inside_map(poses, map, kinds, config.bbox_margin)]
+    poses = pair_hypotheses(lines, pair_i, pair_k, index, config, near,
+                            map_box(map, kinds, config.bbox_margin))
     n_candidates = len(poses)
     if n_candidates == 0:
         where = "the neighbourhood" if near is not None else "the map"
         return GlobalResult(reason=f"no line pair gives a pose inside {where}")
 
-    yield POSE_COST * generated
+    yield POSE_COST * candidate_count(lines, pair_i, pair_k, index, config)
     cells, votes = vote_cells(poses, config)
     yield 2 * POSE_COST * n_candidates  # a sort
     walls = wall_distance(map, kinds, config.dt_cell)

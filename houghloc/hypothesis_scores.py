@@ -68,11 +68,7 @@ def lines_on_walls(poses: NDArray, lines: Lines, walls: WallDistance,
     c, sn = np.cos(lines.theta)[:, None], np.sin(lines.theta)[:, None]
     px = (lines.rho[:, None] * c - s * sn).astype(np.float32)
     py = (lines.rho[:, None] * sn + s * c).astype(np.float32)
-    out = np.empty((len(poses), len(lines)), bool)
-    for sl in row_chunks(len(poses), px.size):
-        on_wall = walls.at(poses[sl], px, py) <= config.inlier_distance  # H×K×S
-        out[sl] = on_wall.mean(axis=2) >= config.min_line_coverage
-    return out
+    return walls.rows_on_walls(poses, px, py, config.inlier_distance, config.min_line_coverage)
 
 
 @dataclass(frozen=True)

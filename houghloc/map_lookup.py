@@ -85,6 +85,20 @@ class WallDistance:
                             poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]), _flat(x), _flat(y),
                             np.float32(within))
 
+    def rows_on_walls(self, poses: NDArray, x: NDArray, y: NDArray, within: float,
+                      coverage: float) -> NDArray[np.bool_]:
+        """Whether at least ``coverage`` of each row of robot-frame points (``x``, ``y``: K×S)
+        placed at each of ``poses`` (P×3) lie on walls, as :meth:`on_walls` counts them: P×K.
+        A row stops being looked up once its answer is decided (most poses are wrong, and two
+        misses settle a row)."""
+        poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        return _rows_on_walls_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,
+                                 poses, np.cos(poses[:, 2]), np.sin(poses[:, 2]),
+                                 np.ascontiguousarray(x.reshape(len(x), -1)),
+                                 np.ascontiguousarray(y.reshape(len(y), -1)),
+                                 np.float32(within), float(coverage))
+
     def closeness(self, poses: NDArray, x: NDArray, y: NDArray, reach: float,
                   smooth: bool = False) -> NDArray[np.float64]:
         """How close robot-frame points (``x``, ``y``) placed at each of ``poses`` (P×3) lie
@@ -150,6 +164,29 @@ def _on_walls_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: ND
                 count += 1
         if len(x):
             out[p] = count / len(x)
+    return out
+
+
+@njit
+def _rows_on_walls_at(grid: NDArray, ox: float, oy: float, inv_cell: float, poses: NDArray,
+                      cos_t: NDArray, sin_t: NDArray, x: NDArray, y: NDArray,
+                      within: np.float32, coverage: float) -> NDArray[np.bool_]:
+    n_rows, n_cols = x.shape
+    out = np.empty((len(poses), n_rows), np.bool_)
+    for p in range(len(poses)):
+        c, s, px, py = cos_t[p], sin_t[p], poses[p, 0], poses[p, 1]
+        for r in range(n_rows):
+            hits = 0
+            for k in range(n_cols):
+                d = np.float32(_distance(grid, (px + c * x[r, k] - s * y[r, k] - ox) * inv_cell,
+                                         (py + s * x[r, k] + c * y[r, k] - oy) * inv_cell,
+                                         False))
+                if d <= within:
+                    hits += 1
+                # the fraction is monotone in the hits: decided once reached or out of reach
+                if hits / n_cols >= coverage or (hits + n_cols - 1 - k) / n_cols < coverage:
+                    break
+            out[p, r] = hits / n_cols >= coverage
     return out
 
 
@@ -256,9 +293,26 @@ def _build_wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
 def inside_map(poses: NDArray, map: SegmentMap, kinds: tuple[str, ...],
                 margin: float) -> NDArray[np.bool_]:
     """Which poses lie within ``margin`` of the bounding box of the map's segments of ``kinds``."""
-    lo, hi = map_bbox(map, kinds)
-    xy = poses[:, :2]
-    return np.all((xy >= lo - margin) & (xy <= hi + margin), axis=1)
+    lo, hi = map_box(map, kinds, margin)
+    return _in_box(np.asarray(poses, dtype=float).reshape(-1, 3), lo[0], lo[1], hi[0], hi[1])
+
+
+def map_box(map: SegmentMap, kinds: tuple[str, ...], margin: float
+            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The (cached) lower and upper corners of the map's box (:func:`map_bbox`) widened by
+    ``margin``: what :func:`inside_map` keeps poses in."""
+    def build() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        lo, hi = map_bbox(map, kinds)
+        return lo - margin, hi + margin
+    return _cached(map, ("box", kinds, margin), build)
+
+
+@njit
+def _in_box(poses: NDArray, x0: float, y0: float, x1: float, y1: float) -> NDArray[np.bool_]:
+    out = np.empty(len(poses), np.bool_)
+    for p in range(len(poses)):
+        out[p] = x0 <= poses[p, 0] <= x1 and y0 <= poses[p, 1] <= y1
+    return out
 
 
 class SegmentSpans:

@@ -10,8 +10,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.config import GlobalMatchConfig
-from houghloc.geometry import wrap_angle
 from houghloc.hypothesis_scores import Hypothesis
+from houghloc.jit import njit
+from houghloc.pose_hypotheses import in_neighbourhood
 
 
 @dataclass(frozen=True)
@@ -37,9 +38,20 @@ class Neighbourhood:
     radius_theta: float
 
     def contains(self, poses: NDArray) -> NDArray[np.bool_]:
-        d = poses[:, :2] - self.pose[:2]
-        return ((np.einsum("ij,ij->i", d, d) <= self.radius_xy**2)
-                & (np.abs(wrap_angle(poses[:, 2] - self.pose[2])) <= self.radius_theta))
+        """Which of ``poses`` (P×3) lie in the neighbourhood (:func:`in_neighbourhood`)."""
+        return _contains(np.asarray(poses, dtype=float).reshape(-1, 3), float(self.pose[0]),
+                         float(self.pose[1]), float(self.pose[2]), float(self.radius_xy) ** 2,
+                         float(self.radius_theta))
+
+
+@njit
+def _contains(poses: NDArray, near_x: float, near_y: float, near_theta: float,
+              radius_xy_sq: float, radius_theta: float) -> NDArray[np.bool_]:
+    out = np.empty(len(poses), np.bool_)
+    for p in range(len(poses)):
+        out[p] = in_neighbourhood(poses[p, 0], poses[p, 1], poses[p, 2], near_x, near_y,
+                                  near_theta, radius_xy_sq, radius_theta)
+    return out
 
 
 Stages = Generator[int, None, GlobalResult]

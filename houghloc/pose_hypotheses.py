@@ -44,37 +44,76 @@ def observed_pairs(lines: Lines, config: GlobalMatchConfig
 
 def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
                     index: AngleIndex, config: GlobalMatchConfig,
-                    near: Neighbourhood | None = None) -> NDArray[np.float64]:
+                    near: Neighbourhood | None = None,
+                    box: tuple[NDArray, NDArray] | None = None) -> NDArray[np.float64]:
     """All poses (H×3) from observed pairs and the map pairs with the same angle between them.
 
     The window half-width is ``angle_tol_sigmas`` σ_δ + ``angle_tol_floor`` (capped), with
     σ_δ² = var θ_i + var θ_k from the lines' covariance; the ragged candidate ranges are walked
-    by one compiled loop (:func:`_pair_poses`). With ``near``, poses whose heading is outside it are
-    left out before their position is solved (a local search keeps a few percent of them); the
-    budget still counts every candidate, so the poses kept are the same as without it.
+    by one compiled loop (:func:`_pair_poses`). With ``near``, only the poses inside it
+    (:meth:`Neighbourhood.contains`); those whose heading is outside it are left out before their
+    position is solved (a local search keeps a few percent of them). With ``box`` (its lower and
+    upper corners), only the poses whose position lies in it. The budget counts every candidate
+    (:func:`candidate_count`), so the poses kept are those of the whole map's hypotheses that pass
+    both cuts, in the same order.
     """
+    lo, counts, tol_max = _windows(lines, pair_i, pair_k, index, config)
+    box_lo, box_hi = (np.full(2, -np.inf), np.full(2, np.inf)) if box is None else box
+    return _pair_poses(lines.theta, lines.rho, pair_i, pair_k, lo, counts, index.beta_a,
+                       index.beta_b, index.r_a, index.r_b, index.n_inv, near is not None,
+                       *(_near_args(near) if near is not None else (0.0, 0.0, 0.0, 0.0, 0.0)),
+                       tol_max, float(box_lo[0]), float(box_lo[1]), float(box_hi[0]),
+                       float(box_hi[1]))
+
+
+def candidate_count(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
+                    index: AngleIndex, config: GlobalMatchConfig) -> int:
+    """How many candidates :func:`pair_hypotheses` solves or cuts: every map pair within the
+    observed pairs' windows, up to the budget (what its work is counted by)."""
+    return int(_windows(lines, pair_i, pair_k, index, config)[1].sum())
+
+
+def _windows(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
+             index: AngleIndex, config: GlobalMatchConfig
+             ) -> tuple[NDArray[np.intp], NDArray[np.intp], float]:
+    """Each observed pair's range of the angle index (first entry, count within the budget),
+    and the widest window's half-width."""
     d_obs = np.mod(lines.theta[pair_k] - lines.theta[pair_i], TWO_PI)
     sigma = np.sqrt(lines.cov[pair_i, 0, 0] + lines.cov[pair_k, 0, 0])
     tol = np.minimum(config.angle_tol_sigmas * sigma + config.angle_tol_floor,
                      config.angle_tol_max)
     lo = np.searchsorted(index.delta, d_obs - tol, side="left")
     hi = np.searchsorted(index.delta, d_obs + tol, side="right")
-    counts = _within_budget(hi - lo, config.max_pair_hypotheses)
-    return _pair_poses(lines.theta, lines.rho, pair_i, pair_k, lo, counts, index.beta_a,
-                       index.beta_b, index.r_a, index.r_b, index.n_inv, near is not None,
-                       near.pose[2] if near is not None else 0.0,
-                       near.radius_theta if near is not None else 0.0, float(tol.max()))
+    return lo, _within_budget(hi - lo, config.max_pair_hypotheses), float(tol.max())
+
+
+def _near_args(near: Neighbourhood) -> tuple[float, float, float, float, float]:
+    """A neighbourhood as the kernels take it: centre, squared radius, heading radius."""
+    return (float(near.pose[0]), float(near.pose[1]), float(near.pose[2]),
+            float(near.radius_xy) ** 2, float(near.radius_theta))
+
+
+@njit
+def in_neighbourhood(x: float, y: float, theta: float, near_x: float, near_y: float,
+                     near_theta: float, radius_xy_sq: float, radius_theta: float) -> bool:
+    """Whether the pose (x, y, θ) lies within √``radius_xy_sq`` and ``radius_theta`` of the
+    neighbourhood's centre (the heading difference wrapped to [−π, π))."""
+    dx, dy = x - near_x, y - near_y
+    return (dx * dx + dy * dy <= radius_xy_sq
+            and abs(_mod_two_pi(theta - near_theta + np.pi) - np.pi) <= radius_theta)
 
 
 @njit
 def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, lo: NDArray,
                 counts: NDArray, beta_a: NDArray, beta_b: NDArray, r_a: NDArray, r_b: NDArray,
-                n_inv: NDArray, use_near: bool, near_theta: float, near_radius: float,
-                tol_max: float) -> NDArray:
+                n_inv: NDArray, use_near: bool, near_x: float, near_y: float,
+                near_theta: float, near_xy_sq: float, near_radius: float, tol_max: float,
+                box_x0: float, box_y0: float, box_x1: float, box_y1: float) -> NDArray:
     """The poses of :func:`pair_hypotheses`, ``counts[p]`` index entries from ``lo[p]`` for each
-    observed pair p: θ = β − θ_obs from either line, their circular mean; (x, y) = N⁻¹ (r − ρ).
-    With a neighbourhood, a pose whose heading is outside it is left out before its position is
-    solved (θ is within half the angle window of θ_a: a first cut on θ_a alone)."""
+    observed pair p: θ = β − θ_obs from either line, their circular mean; (x, y) = N⁻¹ (r − ρ);
+    kept when inside the box (and the neighbourhood). With a neighbourhood, a pose whose
+    heading is outside it is left out before its position is solved (θ is within half the
+    angle window of θ_a: a first cut on θ_a alone)."""
     # with a neighbourhood a few percent of the candidates are kept: the array grows as needed
     # rather than holding them all (megabytes, each page touched for the first time)
     out = np.empty((min(counts.sum(), 4096) if use_near else counts.sum(), 3))
@@ -89,14 +128,17 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
             th_b = beta_b[e] - theta[k]
             half = 0.5 * (_mod_two_pi(th_b - th_a + np.pi) - np.pi)
             th = _mod_two_pi(th_a + half + np.pi) - np.pi
-            if use_near and abs(_mod_two_pi(th - near_theta + np.pi) - np.pi) > near_radius:
+            rhs_a, rhs_b = r_a[e] - rho[i], r_b[e] - rho[k]
+            x = n_inv[e, 0, 0] * rhs_a + n_inv[e, 0, 1] * rhs_b
+            y = n_inv[e, 1, 0] * rhs_a + n_inv[e, 1, 1] * rhs_b
+            if not (box_x0 <= x <= box_x1 and box_y0 <= y <= box_y1):
+                continue
+            if use_near and not in_neighbourhood(x, y, th, near_x, near_y, near_theta,
+                                                 near_xy_sq, near_radius):
                 continue
             if h == len(out):
                 out = np.concatenate((out, np.empty_like(out)))
-            rhs_a, rhs_b = r_a[e] - rho[i], r_b[e] - rho[k]
-            out[h, 0] = n_inv[e, 0, 0] * rhs_a + n_inv[e, 0, 1] * rhs_b
-            out[h, 1] = n_inv[e, 1, 0] * rhs_a + n_inv[e, 1, 1] * rhs_b
-            out[h, 2] = th
+            out[h, 0], out[h, 1], out[h, 2] = x, y, th
             h += 1
     return out[:h]
 
@@ -135,23 +177,101 @@ def _within_budget(counts: NDArray[np.intp], budget: int) -> NDArray[np.intp]:
 # ---------------------------------------------------------------------------- 2. votes
 def vote_cells(poses: NDArray, config: GlobalMatchConfig) -> tuple[NDArray, NDArray]:
     """Bin poses in (x, y, θ); return one pose per occupied cell (its members' mean) and the count
-    of hypotheses in it, best-voted first, at most ``max_cells_cheap``."""
-    q = np.column_stack((np.floor(poses[:, :2] / config.vote_cell_xy),
-                         np.floor(np.mod(poses[:, 2], TWO_PI) / config.vote_cell_theta)))
-    q = q.astype(np.int64)
-    q -= q.min(axis=0)
-    # one integer key per cell: a 1-D unique is several times faster than unique over rows
-    key = np.ravel_multi_index(q.T, tuple(q.max(axis=0) + 1))
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    n_cells = len(counts)
-    # mean pose per cell: positions averaged, θ as a circular mean
-    sums = np.zeros((n_cells, 4))
-    for col, values in enumerate((poses[:, 0], poses[:, 1], np.cos(poses[:, 2]),
-                                  np.sin(poses[:, 2]))):
-        sums[:, col] = np.bincount(inverse, values, minlength=n_cells)
-    cells = np.column_stack((sums[:, :2] / counts[:, None], np.arctan2(sums[:, 3], sums[:, 2])))
+    of hypotheses in it, best-voted first, at most ``max_cells_cheap``.
+
+    Cells are numbered in the order of their (x, y, θ) bin indices (row-major), so that cells
+    with equal votes rank the same on every run; the compiled :func:`_cells_of` finds each pose's
+    cell by a radix sort of the bin keys, in time linear in the poses.
+    """
+    poses = np.ascontiguousarray(poses, dtype=float)
+    inverse, counts = _cells_of(poses, config.vote_cell_xy, config.vote_cell_theta)
     order = top_indices(counts.astype(float), config.max_cells_cheap)
-    return cells[order], counts[order]
+    return _cell_means(poses, inverse, order, counts[order]), counts[order]
+
+
+@njit
+def _cells_of(poses: NDArray, cell_xy: float, cell_theta: float
+              ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Each pose's cell (numbered by ascending bin key) and each cell's count of poses.
+
+    Bin (⌊x / c⌋, ⌊y / c⌋, ⌊(θ mod 2π) / c_θ⌋), offset to start at 0, has the row-major key
+    (q_x · n_y + q_y) · n_θ + q_θ; the keys are sorted by a stable least-significant-digit radix
+    sort and the distinct keys numbered in order.
+    """
+    n = len(poses)
+    keys = np.empty(n, np.int64)
+    if n:  # two passes over the bins: their lowest and highest indices, then the keys
+        low_x = low_y = low_theta = np.iinfo(np.int64).max
+        high_y = high_theta = np.iinfo(np.int64).min
+        for h in range(n):
+            q_x, q_y, q_theta = _bin(poses[h], cell_xy, cell_theta)
+            low_x, low_y, low_theta = min(low_x, q_x), min(low_y, q_y), min(low_theta, q_theta)
+            high_y, high_theta = max(high_y, q_y), max(high_theta, q_theta)
+        n_y, n_theta = high_y - low_y + 1, high_theta - low_theta + 1
+        for h in range(n):
+            q_x, q_y, q_theta = _bin(poses[h], cell_xy, cell_theta)
+            keys[h] = ((q_x - low_x) * n_y + q_y - low_y) * n_theta + q_theta - low_theta
+    # as few passes of at most 16-bit digits as the largest key needs, the digits as narrow as
+    # those passes allow (a narrow digit's counts stay in cache)
+    bits = 1
+    while n and (keys.max() >> bits) > 0:
+        bits += 1
+    passes = (bits + 15) // 16
+    width = (bits + passes - 1) // passes
+    mask = (1 << width) - 1
+    order = np.arange(n)  # the keys travel with their poses' indices: no look-up through them
+    spare, spare_keys = np.empty(n, np.int64), np.empty(n, np.int64)
+    for shift in range(0, passes * width, width):
+        start = np.zeros(mask + 2, np.int64)
+        for h in range(n):
+            start[((keys[h] >> shift) & mask) + 1] += 1
+        for d in range(mask + 1):
+            start[d + 1] += start[d]
+        for h in range(n):
+            d = (keys[h] >> shift) & mask
+            spare[start[d]], spare_keys[start[d]] = order[h], keys[h]
+            start[d] += 1
+        order, spare, keys, spare_keys = spare, order, spare_keys, keys
+    inverse = np.empty(n, np.intp)
+    counts = np.zeros(n, np.intp)
+    cell = -1
+    for j in range(n):
+        if j == 0 or keys[j] != keys[j - 1]:
+            cell += 1
+        inverse[order[j]] = cell
+        counts[cell] += 1
+    return inverse, counts[: cell + 1]
+
+
+@njit
+def _bin(pose: NDArray, cell_xy: float, cell_theta: float) -> tuple[int, int, int]:
+    """The vote bin of a pose: (⌊x / c⌋, ⌊y / c⌋, ⌊(θ mod 2π) / c_θ⌋)."""
+    return (int(np.floor(pose[0] / cell_xy)), int(np.floor(pose[1] / cell_xy)),
+            int(np.floor(_mod_two_pi(pose[2]) / cell_theta)))
+
+
+@njit
+def _cell_means(poses: NDArray, inverse: NDArray, cells: NDArray, counts: NDArray
+                ) -> NDArray[np.float64]:
+    """The mean pose of each of ``cells`` (``counts`` poses each): positions averaged, θ as a
+    circular mean (atan2 of the summed sines and cosines), the poses added in their order."""
+    rank = np.full(len(inverse), -1, np.intp)
+    for j in range(len(cells)):
+        rank[cells[j]] = j
+    sums = np.zeros((len(cells), 4))
+    for h in range(len(inverse)):
+        j = rank[inverse[h]]
+        if j >= 0:
+            sums[j, 0] += poses[h, 0]
+            sums[j, 1] += poses[h, 1]
+            sums[j, 2] += np.cos(poses[h, 2])
+            sums[j, 3] += np.sin(poses[h, 2])
+    means = np.empty((len(cells), 3))
+    for j in range(len(cells)):
+        means[j, 0] = sums[j, 0] / counts[j]
+        means[j, 1] = sums[j, 1] / counts[j]
+        means[j, 2] = np.arctan2(sums[j, 3], sums[j, 2])
+    return means
 
 
 def top_indices(values: NDArray, m: int) -> NDArray[np.intp]:
