@@ -36,6 +36,8 @@ class AngleIndex:
     n_inv: NDArray[np.float64]  # E×2×2
     line_a: NDArray[np.intp]
     line_b: NDArray[np.intp]
+    cos_a: NDArray[np.float64]  # cos β_a and sin β_a: a heading cut without a modulo
+    sin_a: NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -260,7 +262,7 @@ def _build_angle_index(map: SegmentMap, kinds: tuple[str, ...], min_angle: float
     ca, sa, cb, sb = np.cos(beta[a]), np.sin(beta[a]), np.cos(beta[b]), np.sin(beta[b])
     det = ca * sb - sa * cb  # = sin δ, bounded away from 0 by min_angle
     n_inv = np.stack((np.stack((sb, -sa), -1), np.stack((-cb, ca), -1)), -2) / det[:, None, None]
-    return AngleIndex(delta, beta[a], beta[b], r[a], r[b], n_inv, line[a], line[b])
+    return AngleIndex(delta, beta[a], beta[b], r[a], r[b], n_inv, line[a], line[b], ca, sa)
 
 
 def wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,

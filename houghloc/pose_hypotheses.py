@@ -60,7 +60,8 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
     lo, counts, tol_max = _windows(lines, pair_i, pair_k, index, config)
     box_lo, box_hi = (np.full(2, -np.inf), np.full(2, np.inf)) if box is None else box
     return _pair_poses(lines.theta, lines.rho, pair_i, pair_k, lo, counts, index.beta_a,
-                       index.beta_b, index.r_a, index.r_b, index.n_inv, near is not None,
+                       index.beta_b, index.r_a, index.r_b, index.n_inv, index.cos_a,
+                       index.sin_a, near is not None,
                        *(_near_args(near) if near is not None else (0.0, 0.0, 0.0, 0.0, 0.0)),
                        tol_max, float(box_lo[0]), float(box_lo[1]), float(box_hi[0]),
                        float(box_hi[1]))
@@ -106,25 +107,32 @@ def in_neighbourhood(x: float, y: float, theta: float, near_x: float, near_y: fl
 @njit
 def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, lo: NDArray,
                 counts: NDArray, beta_a: NDArray, beta_b: NDArray, r_a: NDArray, r_b: NDArray,
-                n_inv: NDArray, use_near: bool, near_x: float, near_y: float,
+                n_inv: NDArray, cos_a: NDArray, sin_a: NDArray, use_near: bool,
+                near_x: float, near_y: float,
                 near_theta: float, near_xy_sq: float, near_radius: float, tol_max: float,
                 box_x0: float, box_y0: float, box_x1: float, box_y1: float) -> NDArray:
     """The poses of :func:`pair_hypotheses`, ``counts[p]`` index entries from ``lo[p]`` for each
     observed pair p: θ = β − θ_obs from either line, their circular mean; (x, y) = N⁻¹ (r − ρ);
     kept when inside the box (and the neighbourhood). With a neighbourhood, a pose whose
     heading is outside it is left out before its position is solved (θ is within half the
-    angle window of θ_a: a first cut on θ_a alone)."""
+    angle window of θ_a: a first cut on θ_a alone, then the exact one on θ)."""
     # with a neighbourhood a few percent of the candidates are kept: the array grows as needed
     # rather than holding them all (megabytes, each page touched for the first time)
     out = np.empty((min(counts.sum(), 4096) if use_near else counts.sum(), 3))
+    # θ_a = β_a − θ_i within near_radius + tol_max of the centre's heading c is
+    # cos(β_a − (θ_i + c)) ≥ cos(near_radius + tol_max): a product per candidate, no modulo.
+    # The bound is widened by a microradian, so the cut keeps a superset and the exact test
+    # on θ below decides.
+    reach = near_radius + tol_max + 1e-6
+    bound = math.cos(reach) if reach < np.pi else -2.0
     h = 0
     for p in range(len(pair_i)):
         i, k = pair_i[p], pair_k[p]
+        cos_c, sin_c = math.cos(theta[i] + near_theta), math.sin(theta[i] + near_theta)
         for e in range(lo[p], lo[p] + counts[p]):
-            th_a = beta_a[e] - theta[i]
-            if use_near and abs(_mod_two_pi(th_a - near_theta + np.pi) - np.pi) > (
-                    near_radius + tol_max):
+            if use_near and cos_a[e] * cos_c + sin_a[e] * sin_c < bound:
                 continue
+            th_a = beta_a[e] - theta[i]
             th_b = beta_b[e] - theta[k]
             half = 0.5 * (_mod_two_pi(th_b - th_a + np.pi) - np.pi)
             th = _mod_two_pi(th_a + half + np.pi) - np.pi
