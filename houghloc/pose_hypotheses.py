@@ -189,7 +189,8 @@ def vote_cells(poses: NDArray, config: GlobalMatchConfig) -> tuple[NDArray, NDAr
 
     Cells are numbered in the order of their (x, y, θ) bin indices (row-major), so that cells
     with equal votes rank the same on every run; the compiled :func:`_cells_of` finds each pose's
-    cell by a radix sort of the bin keys, in time linear in the poses.
+    cell by a radix sort of the bin keys, in time linear in the poses, and the means are taken
+    only of the cells kept.
     """
     poses = np.ascontiguousarray(poses, dtype=float)
     inverse, counts = _cells_of(poses, config.vote_cell_xy, config.vote_cell_theta)

@@ -122,7 +122,7 @@ def slide_stages(lines: Lines, pts: NDArray, map: SegmentMap, config: GlobalMatc
     per_pose = len(others) * config.line_samples
     for sl in row_chunks(len(coarse), 2 * per_pose, STAGE_LOOKUPS):
         second[sl] = lines_on_walls(coarse[sl], others, walls, config).any(axis=1)
-        yield 2 * (sl.stop - sl.start) * per_pose  # through a P×K×S array
+        yield 2 * (sl.stop - sl.start) * per_pose  # a look-up and a test per sample
     coarse, which = coarse[second], which[second]
     if len(coarse) == 0:
         return GlobalResult(reason="sliding: no pose puts two parallel lines on walls")

@@ -16,9 +16,14 @@ from houghloc import SegmentMap, observe_lines
 from houghloc.geometry import TWO_PI, relative, transform_points, wrap_angle
 from houghloc.global_match import GlobalMatchConfig, global_match
 from houghloc.hypothesis_scores import seen_directly
-from houghloc.map_lookup import angle_index, wall_distance
+from houghloc.map_lookup import angle_index, inside_map, map_box, wall_distance
 from houghloc.match_result import GlobalResult, Neighbourhood
-from houghloc.pose_hypotheses import _mod_two_pi, observed_pairs, pair_hypotheses
+from houghloc.pose_hypotheses import (
+    _mod_two_pi,
+    observed_pairs,
+    pair_hypotheses,
+    vote_cells,
+)
 from houghloc.refine import Lines
 from tests.conftest import MAPS
 
@@ -392,3 +397,87 @@ def test_the_candidate_loops_modulo_is_pythons_bit_for_bit(u: float) -> None:
     mine, python = _mod_two_pi(u), u % TWO_PI
     assert struct.pack("<d", mine) == struct.pack("<d", python) or (
         math.isnan(mine) and math.isnan(python)), (u, mine, python)
+
+
+# ---------------------------------------------------------------------------- compiled steps
+@pytest.mark.parametrize("seed", range(3))
+def test_the_box_cut_keeps_exactly_the_poses_inside_the_map(office_large: SegmentMap,
+                                                            seed: int) -> None:
+    """Cutting to the map's box while the poses are solved keeps what cutting after would."""
+    rng = np.random.default_rng(seed)
+    points = accumulated_views(office_large, free_pose(office_large, rng), rng)
+    _, _, lines = observe_lines(points, HOUGH)
+    config = GlobalMatchConfig()
+    pair_i, pair_k = observed_pairs(lines, config)
+    index = angle_index(office_large, ("wall",), config.min_pair_angle,
+                        config.angle_tol_max + 1e-9)
+    everywhere = pair_hypotheses(lines, pair_i, pair_k, index, config)
+    inside = everywhere[inside_map(everywhere, office_large, ("wall",), 0.5)]
+    assert 0 < len(inside) < len(everywhere)
+    cut = pair_hypotheses(lines, pair_i, pair_k, index, config,
+                          box=map_box(office_large, ("wall",), 0.5))
+    np.testing.assert_array_equal(cut, inside)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 400), st.sampled_from([0.05, 0.25, 3.0]),
+       st.sampled_from([1e-3, 0.5, 20.0]))
+def test_votes_count_each_cell_once_and_rank_ties_by_cell(seed: int, n: int, cell: float,
+                                                          spread: float) -> None:
+    """Every pose is counted in its (x, y, θ) cell; the most-voted cells come first, each
+    once, with its members' mean pose (θ a circular mean)."""
+    rng = np.random.default_rng(seed)
+    # few distinct poses, repeated, so that cells hold several and votes tie
+    distinct = np.column_stack((rng.uniform(-spread, spread, (n, 2)), rng.uniform(-7, 7, n)))
+    poses = distinct[rng.integers(0, n, n)]
+    config = GlobalMatchConfig(vote_cell_xy=cell, max_cells_cheap=max(1, n // 3))
+    cells, votes = vote_cells(poses, config)
+    bins = np.column_stack((np.floor(poses[:, :2] / cell),
+                            np.floor(np.mod(poses[:, 2], TWO_PI) / config.vote_cell_theta)))
+    _, inverse, counts = np.unique(bins, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    np.testing.assert_array_equal(votes, np.sort(counts)[::-1][: config.max_cells_cheap])
+    means = [np.r_[poses[inverse == j, :2].mean(axis=0),
+                   np.arctan2(np.sin(poses[inverse == j, 2]).sum(),
+                              np.cos(poses[inverse == j, 2]).sum())]
+             for j in range(len(counts))]
+    found: set[int] = set()
+    for cell_pose, vote in zip(cells, votes, strict=True):
+        same = [j for j in range(len(counts)) if counts[j] == vote
+                and np.allclose(means[j][:2], cell_pose[:2], atol=1e-9)
+                and abs(float(wrap_angle(means[j][2] - cell_pose[2]))) < 1e-9]
+        assert same and not found & set(same), (cell_pose, vote)
+        found.add(same[0])
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from([0.3, 0.5, 0.6, 0.75, 1.0]),
+       st.integers(2, 7))
+def test_a_row_on_walls_is_decided_as_its_full_count_would(office: SegmentMap, seed: int,
+                                                           coverage: float, samples: int
+                                                           ) -> None:
+    """The look-ups a row skips once its answer is known never change the answer."""
+    walls = wall_distance(office, ("wall",), 0.05)
+    rng = np.random.default_rng(seed)
+    poses = np.column_stack((rng.uniform(0, 20, 50), rng.uniform(0, 15, 50),
+                             rng.uniform(-np.pi, np.pi, 50)))
+    x, y = rng.uniform(-6, 6, (2, 5, samples))
+    on = walls.at(poses, x, y) <= 0.12
+    expected = on.mean(axis=2) >= coverage
+    np.testing.assert_array_equal(walls.rows_on_walls(poses, x, y, 0.12, coverage), expected)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.floats(-50, 50), st.floats(-50, 50), st.floats(-20, 20), st.floats(0, 5),
+       st.floats(0, 4))
+def test_neighbourhood_contains_what_its_radii_say(x: float, y: float, theta: float,
+                                                   radius_xy: float, radius_theta: float
+                                                   ) -> None:
+    near = Neighbourhood(np.array([1.0, -2.0, 0.5]), radius_xy, radius_theta)
+    pose = np.array([[x, y, theta]])
+    inside = (math.hypot(x - 1.0, y + 2.0) <= radius_xy
+              and abs(float(wrap_angle(theta - 0.5))) <= radius_theta)
+    margin = 1e-9  # the boundary itself is rounding's to decide
+    if abs(math.hypot(x - 1.0, y + 2.0) - radius_xy) > margin and abs(
+            abs(float(wrap_angle(theta - 0.5))) - radius_theta) > margin:
+        assert bool(near.contains(pose)[0]) == inside
