@@ -99,9 +99,8 @@ def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
          x: NDArray, iterations: int, max_pair: float, final_pair: float, huber: float,
          min_points: int) -> tuple[bool, NDArray, NDArray, float, float]:
     """The Gauss–Newton iterations of :func:`point_to_line_icp`: (found, x, JᵀWJ + damping,
-    σ̂², overlap). Nearest neighbours come from a grid of the previous scan with cells as wide
-    as the widest pairing distance, so a pair is always in one of the 3 × 3 cells around."""
-    index = _cell_index(previous, max(max_pair, final_pair))
+    σ̂², overlap). Nearest neighbours come from a grid of the previous scan (:func:`_nearest`)."""
+    index = _cell_index(previous, _grid_cell(previous, final_pair))
     n = len(current)
     residual, weight = np.zeros(n), np.zeros(n)
     hessian = np.eye(3)
@@ -146,6 +145,20 @@ def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
     return True, x, hessian, sigma2, paired / n
 
 
+GRID_CELLS = 262_144
+"""Cells of the previous scan's grid at most (2 MB of counts): a scan spread over a hall has
+coarser cells rather than a grid as large as the hall."""
+
+
+@njit
+def _grid_cell(points: NDArray, final_pair: float) -> float:
+    """The side of the grid's cells: the last pairing distance, so that the nearest wall point
+    is mostly in the 3 × 3 cells around a point; coarser only beyond ``GRID_CELLS``."""
+    width = points[:, 0].max() - points[:, 0].min()
+    height = points[:, 1].max() - points[:, 1].min()
+    return max(final_pair, math.sqrt(width * height / GRID_CELLS), 1e-3)
+
+
 @njit
 def _cell_index(points: NDArray, cell: float) -> tuple:
     """Points bucketed in square cells of side ``cell`` (a counting sort): the grid's origin,
@@ -171,17 +184,38 @@ def _cell_index(points: NDArray, cell: float) -> tuple:
 
 @njit
 def _nearest(points: NDArray, index: tuple, x: float, y: float, reach: float) -> int:
-    """The point of :func:`_cell_index` nearest (x, y) and closer than ``reach`` (at most the
-    cell's side: it lies in one of the 3 × 3 cells around), or −1."""
+    """The point of :func:`_cell_index` nearest (x, y) and closer than ``reach``, or −1 (ties:
+    the lowest index).
+
+    Cells are searched in square rings around the one holding (x, y), the nearest first; the
+    search stops when the next ring lies farther than the best point found (or than ``reach``):
+    a point beyond the rings searched is at least as far as their outer edge. Along a wall the
+    nearest point is centimetres away, so one or two rings are searched, not all of ``reach``.
+    """
     ox, oy, inv_cell, nx, ny, start, order = index
+    cell = 1.0 / inv_cell
     cx, cy = math.floor((x - ox) * inv_cell), math.floor((y - oy) * inv_cell)
     best, best_d2 = -1, reach * reach
-    for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
-        for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
-            c = gy * nx + gx
-            for m in range(start[c], start[c + 1]):
-                k = order[m]
-                d2 = (points[k, 0] - x) ** 2 + (points[k, 1] - y) ** 2
-                if d2 < best_d2 or (d2 == best_d2 and 0 <= k < best):
-                    best, best_d2 = k, d2
+    rings = int(reach * inv_cell) + 2
+    for ring in range(rings):
+        if ring > 0:
+            # the distance from (x, y) to the outside of the rings searched so far; a point's
+            # cell is rounded from its coordinates, so the bound is loosened by a micrometre
+            edge = min(x - (ox + (cx - ring + 1) * cell), ox + (cx + ring) * cell - x,
+                       y - (oy + (cy - ring + 1) * cell), oy + (cy + ring) * cell - y) - 1e-6
+            if edge > 0.0 and edge * edge > best_d2:
+                break
+        for gy in range(max(cy - ring, 0), min(cy + ring + 1, ny)):
+            on_edge_row = gy == cy - ring or gy == cy + ring
+            step = 1 if on_edge_row else 2 * ring
+            gx = cx - ring
+            while gx <= cx + ring:
+                if 0 <= gx < nx:
+                    c = gy * nx + gx
+                    for m in range(start[c], start[c + 1]):
+                        k = order[m]
+                        d2 = (points[k, 0] - x) ** 2 + (points[k, 1] - y) ** 2
+                        if d2 < best_d2 or (d2 == best_d2 and 0 <= k < best):
+                            best, best_d2 = k, d2
+                gx += max(step, 1)
     return best

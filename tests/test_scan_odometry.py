@@ -363,3 +363,25 @@ def test_bad_scans_and_readings_leave_a_finite_pose(slipping_run) -> None:
     truth = slipping_run.truth[np.searchsorted(slipping_run.truth_t, estimate.t)]
     assert np.hypot(*(estimate.pose[:2] - truth[:2])) < 0.05
     assert loc.scan_odometry.matched >= 80
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 300), st.sampled_from([0.02, 0.15, 0.6, 3.0]),
+       st.sampled_from([0.05, 0.15, 1.0]), st.booleans())
+def test_the_grids_nearest_point_is_the_brute_force_one(seed: int, n: int, reach: float,
+                                                        cell: float, lattice: bool) -> None:
+    """The ring search of the ICP's grid finds the point a scan of all points finds: the
+    nearest closer than ``reach``, ties to the lowest index, also for queries off the grid and
+    for points on the cells' edges."""
+    from fusion.scan_icp import _cell_index, _nearest
+
+    rng = np.random.default_rng(seed)
+    points = (np.round(rng.uniform(-2, 2, (n, 2)) / cell) * cell if lattice
+              else rng.uniform(-2, 2, (n, 2)))
+    points = np.ascontiguousarray(points[rng.integers(0, n, n)])  # repeated points tie
+    index = _cell_index(points, cell)
+    for x, y in rng.uniform(-3, 3, (20, 2)):
+        d2 = (points[:, 0] - x) ** 2 + (points[:, 1] - y) ** 2
+        within = np.flatnonzero(d2 < reach * reach)
+        expected = -1 if len(within) == 0 else int(within[np.argmin(d2[within])])
+        assert _nearest(points, index, x, y, reach) == expected
