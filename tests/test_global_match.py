@@ -167,19 +167,24 @@ def test_neighbourhood_keeps_only_the_poses_near_it(robocup: SegmentMap) -> None
     assert global_match(lines, points, robocup, GlobalMatchConfig(), near=away).best is None
 
 
+def pairs_in_view(m: SegmentMap, seed: int):
+    """A pose, the lines of the views accumulated there, their pairs, the map's angle index and
+    the settings: the inputs of :func:`pair_hypotheses`."""
+    rng = np.random.default_rng(seed)
+    truth = free_pose(m, rng)
+    _, _, lines = observe_lines(accumulated_views(m, truth, rng), HOUGH)
+    config = GlobalMatchConfig()
+    pair_i, pair_k = observed_pairs(lines, config)
+    index = angle_index(m, ("wall",), config.min_pair_angle, config.angle_tol_max + 1e-9)
+    return truth, lines, pair_i, pair_k, index, config
+
+
 @pytest.mark.parametrize("seed", range(4))
 def test_neighbourhood_cut_keeps_exactly_the_poses_inside_it(office_large: SegmentMap,
                                                               seed: int) -> None:
     """The heading cut made before positions are solved is only a shortcut: the poses are those
     of the whole map's hypotheses that lie in the neighbourhood, in the same order."""
-    rng = np.random.default_rng(seed)
-    truth = free_pose(office_large, rng)
-    points = accumulated_views(office_large, truth, rng)
-    _, _, lines = observe_lines(points, HOUGH)
-    config = GlobalMatchConfig()
-    pair_i, pair_k = observed_pairs(lines, config)
-    index = angle_index(office_large, ("wall",), config.min_pair_angle,
-                        config.angle_tol_max + 1e-9)
+    truth, lines, pair_i, pair_k, index, config = pairs_in_view(office_large, seed)
     everywhere = pair_hypotheses(lines, pair_i, pair_k, index, config)
     # neighbourhoods whose heading edge passes through the hypotheses near the truth
     for turn in np.radians([8.0, 19.0, 19.8, 20.0, 20.2, -19.9]):
@@ -404,13 +409,7 @@ def test_the_candidate_loops_modulo_is_pythons_bit_for_bit(u: float) -> None:
 def test_the_box_cut_keeps_exactly_the_poses_inside_the_map(office_large: SegmentMap,
                                                             seed: int) -> None:
     """Cutting to the map's box while the poses are solved keeps what cutting after would."""
-    rng = np.random.default_rng(seed)
-    points = accumulated_views(office_large, free_pose(office_large, rng), rng)
-    _, _, lines = observe_lines(points, HOUGH)
-    config = GlobalMatchConfig()
-    pair_i, pair_k = observed_pairs(lines, config)
-    index = angle_index(office_large, ("wall",), config.min_pair_angle,
-                        config.angle_tol_max + 1e-9)
+    _, lines, pair_i, pair_k, index, config = pairs_in_view(office_large, seed)
     everywhere = pair_hypotheses(lines, pair_i, pair_k, index, config)
     inside = everywhere[inside_map(everywhere, office_large, ("wall",), 0.5)]
     assert 0 < len(inside) < len(everywhere)
