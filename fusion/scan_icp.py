@@ -207,7 +207,7 @@ def _nearest(points: NDArray, index: tuple, x: float, y: float, reach: float) ->
                 break
         for gy in range(max(cy - ring, 0), min(cy + ring + 1, ny)):
             on_edge_row = gy == cy - ring or gy == cy + ring
-            step = 1 if on_edge_row else 2 * ring
+            step = 1 if on_edge_row else 2 * ring  # else only its two ends (ring ≥ 1)
             gx = cx - ring
             while gx <= cx + ring:
                 if 0 <= gx < nx:
@@ -217,5 +217,5 @@ def _nearest(points: NDArray, index: tuple, x: float, y: float, reach: float) ->
                         d2 = (points[k, 0] - x) ** 2 + (points[k, 1] - y) ** 2
                         if d2 < best_d2 or (d2 == best_d2 and 0 <= k < best):
                             best, best_d2 = k, d2
-                gx += max(step, 1)
+                gx += step
     return best

@@ -91,8 +91,8 @@ class WallDistance:
                       coverage: float) -> NDArray[np.bool_]:
         """Whether at least ``coverage`` of each row of robot-frame points (``x``, ``y``: K×S)
         placed at each of ``poses`` (P×3) lie on walls, as :meth:`on_walls` counts them: P×K.
-        A row stops being looked up once its answer is decided (most poses are wrong, and two
-        misses settle a row)."""
+        A row stops being looked up once its answer is decided (most poses are wrong; with
+        four samples and a coverage of 0.6, two misses settle a row)."""
         poses = np.asarray(poses, dtype=float).reshape(-1, 3)
         x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
         return _rows_on_walls_at(self.distance, self.origin[0], self.origin[1], 1.0 / self.cell,

@@ -39,9 +39,13 @@ class Neighbourhood:
 
     def contains(self, poses: NDArray) -> NDArray[np.bool_]:
         """Which of ``poses`` (P×3) lie in the neighbourhood (:func:`in_neighbourhood`)."""
-        return _contains(np.asarray(poses, dtype=float).reshape(-1, 3), float(self.pose[0]),
-                         float(self.pose[1]), float(self.pose[2]), float(self.radius_xy) ** 2,
-                         float(self.radius_theta))
+        return _contains(np.asarray(poses, dtype=float).reshape(-1, 3), *self.kernel_args())
+
+    def kernel_args(self) -> tuple[float, float, float, float, float]:
+        """The neighbourhood as the compiled tests take it: centre (x, y, θ), squared radius,
+        heading radius."""
+        return (float(self.pose[0]), float(self.pose[1]), float(self.pose[2]),
+                float(self.radius_xy) ** 2, float(self.radius_theta))
 
 
 @njit

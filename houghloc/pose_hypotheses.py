@@ -62,7 +62,7 @@ def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.i
     return _pair_poses(lines.theta, lines.rho, pair_i, pair_k, lo, counts, index.beta_a,
                        index.beta_b, index.r_a, index.r_b, index.n_inv, index.cos_a,
                        index.sin_a, near is not None,
-                       *(_near_args(near) if near is not None else (0.0, 0.0, 0.0, 0.0, 0.0)),
+                       *(near.kernel_args() if near is not None else (0.0, 0.0, 0.0, 0.0, 0.0)),
                        tol_max, float(box_lo[0]), float(box_lo[1]), float(box_hi[0]),
                        float(box_hi[1]))
 
@@ -86,12 +86,6 @@ def _windows(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
     lo = np.searchsorted(index.delta, d_obs - tol, side="left")
     hi = np.searchsorted(index.delta, d_obs + tol, side="right")
     return lo, _within_budget(hi - lo, config.max_pair_hypotheses), float(tol.max())
-
-
-def _near_args(near: Neighbourhood) -> tuple[float, float, float, float, float]:
-    """A neighbourhood as the kernels take it: centre, squared radius, heading radius."""
-    return (float(near.pose[0]), float(near.pose[1]), float(near.pose[2]),
-            float(near.radius_xy) ** 2, float(near.radius_theta))
 
 
 @njit
