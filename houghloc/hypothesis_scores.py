@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.displacement import Displacement, match_and_solve
-from houghloc.geometry import wrap_angle
+from houghloc.geometry import TWO_PI, mod_two_pi, wrap_angle
 from houghloc.jit import njit
 from houghloc.map_lookup import WallDistance
 from houghloc.matching import Matches
@@ -112,21 +112,36 @@ def point_scores(poses: NDArray, points: NDArray, members: NDArray[np.bool_],
 # ---------------------------------------------------------------------------- 5. clusters
 def cluster(poses: NDArray, scores: NDArray, config: GlobalMatchConfig) -> list[int]:
     """Greedy non-maximum suppression in pose space: the best pose absorbs every pose within
-    ``cluster_xy`` and ``cluster_theta`` of it. Returns the kept indices, best first (the loop runs
-    once per cluster, not per pose)."""
-    order = np.argsort(-scores, kind="stable")
-    alive = np.ones(len(poses), dtype=bool)
-    kept: list[int] = []
+    ``cluster_xy`` and ``cluster_theta`` of it. Returns the kept indices, best first."""
+    order = np.argsort(-np.asarray(scores, dtype=float), kind="stable")
+    return _cluster_kernel(np.ascontiguousarray(poses, dtype=float).reshape(-1, 3), order,
+                           config.cluster_xy, config.cluster_theta).tolist()
+
+
+@njit
+def _cluster_kernel(poses: NDArray, order: NDArray, radius_xy: float, radius_theta: float
+                    ) -> NDArray[np.intp]:
+    """:func:`cluster` on poses already ranked (``order``): each pose still free takes, with
+    itself, the free poses within ``radius_xy`` (hypot of the differences) and ``radius_theta``
+    (the difference wrapped to [−π, π), as :func:`houghloc.geometry.wrap_angle` does)."""
+    n = len(poses)
+    free = np.ones(n, np.bool_)
+    kept = np.empty(len(order), np.intp)
+    count, left = 0, n
     for j in order:
-        if not alive[j]:
+        if not free[j]:
             continue
-        kept.append(int(j))
-        near = (np.hypot(*(poses[:, :2] - poses[j, :2]).T) <= config.cluster_xy) & (
-            np.abs(wrap_angle(poses[:, 2] - poses[j, 2])) <= config.cluster_theta)
-        alive &= ~near
-        if not alive.any():
+        kept[count] = j
+        count += 1
+        for i in range(n):
+            if (free[i] and math.hypot(poses[i, 0] - poses[j, 0], poses[i, 1] - poses[j, 1])
+                    <= radius_xy and abs(mod_two_pi(poses[i, 2] - poses[j, 2] + np.pi)
+                                         - np.pi) <= radius_theta):
+                free[i] = False
+                left -= 1
+        if left == 0:
             break
-    return kept
+    return kept[:count]
 
 
 def refine_hypothesis(pose: NDArray, lines: Lines, max_range: float, pts_s: NDArray,
@@ -205,18 +220,27 @@ def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[
 @njit
 def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, starts: NDArray,
                 ends: NDArray, margin: float) -> NDArray[np.bool_]:
-    """:func:`seen_directly` for the robot at (ox, oy) heading (c, s) = (cos θ, sin θ)."""
+    """:func:`seen_directly` for the robot at (ox, oy) heading (c, s) = (cos θ, sin θ).
+
+    A ray crosses a wall's interior only at a bearing the wall spans from the robot, so each
+    point tries only the walls listed for its bearing's bin (:func:`_walls_by_bearing`): the
+    same answer as trying every wall."""
     seen = np.ones(len(points), np.bool_)
     # the fraction of each wall's length that is END_GRAZE: u must lie beyond it from both ends
     graze = np.empty(len(starts))
     for j in range(len(starts)):
         graze[j] = END_GRAZE / max(math.hypot(ends[j, 0] - starts[j, 0],
                                               ends[j, 1] - starts[j, 1]), END_GRAZE)
+    first, walls = _walls_by_bearing(ox, oy, starts, ends)
     for i in range(len(points)):
         dx = ox + c * points[i, 0] - s * points[i, 1] - ox  # d = q − o, q in the world
         dy = oy + s * points[i, 0] + c * points[i, 1] - oy
+        if not (math.isfinite(dx) and math.isfinite(dy)):
+            continue  # no crossing can be computed: every test below fails on NaN
         t_max = 1.0 - margin / max(math.hypot(dx, dy), 1e-9)  # in units of the point's range
-        for j in range(len(starts)):
+        b = math.floor(math.atan2(dy, dx) / BEARING_STEP) % BEARING_BINS
+        for q in range(first[b], first[b + 1]):
+            j = walls[q]
             wx, wy = starts[j, 0] - ox, starts[j, 1] - oy
             ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
             den = dx * ey - dy * ex
@@ -228,3 +252,43 @@ def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, start
                 seen[i] = False
                 break
     return seen
+
+
+BEARING_BINS = 360
+BEARING_STEP = TWO_PI / BEARING_BINS
+
+
+@njit
+def _walls_by_bearing(ox: float, oy: float, starts: NDArray, ends: NDArray
+                      ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """The walls spanning each of ``BEARING_BINS`` bins of bearing from (ox, oy), as ranges
+    ``first[b]:first[b + 1]`` of ``walls``. A wall spans the bins between its ends' bearings
+    (the shorter way round), one bin wider on each side for rounding; a wall the origin lies on
+    or beside, every bin."""
+    n = BEARING_BINS
+    lo = np.empty(len(starts), np.intp)
+    count = np.empty(len(starts), np.intp)
+    for j in range(len(starts)):
+        a0 = math.atan2(starts[j, 1] - oy, starts[j, 0] - ox)
+        gap = math.atan2(ends[j, 1] - oy, ends[j, 0] - ox) - a0
+        gap = (gap + np.pi) % TWO_PI - np.pi
+        if not abs(gap) <= np.pi - 2 * BEARING_STEP:  # beside the wall, or not finite
+            lo[j], count[j] = 0, n
+        else:
+            low = a0 + min(gap, 0.0)
+            lo[j] = math.floor(low / BEARING_STEP) - 1
+            count[j] = min(math.floor((low + abs(gap)) / BEARING_STEP) + 1 - lo[j] + 1, n)
+    first = np.zeros(n + 1, np.intp)
+    for j in range(len(starts)):
+        for q in range(count[j]):
+            first[(lo[j] + q) % n + 1] += 1
+    for b in range(n):
+        first[b + 1] += first[b]
+    fill = first[:-1].copy()
+    walls = np.empty(first[n], np.intp)
+    for j in range(len(starts)):
+        for q in range(count[j]):
+            b = (lo[j] + q) % n
+            walls[fill[b]] = j
+            fill[b] += 1
+    return first, walls

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from houghloc.geometry import TWO_PI
+from houghloc.geometry import TWO_PI, mod_two_pi
 from houghloc.jit import njit
 from houghloc.map_lookup import AngleIndex
 from houghloc.refine import Lines
@@ -95,7 +95,7 @@ def in_neighbourhood(x: float, y: float, theta: float, near_x: float, near_y: fl
     neighbourhood's centre (the heading difference wrapped to [−π, π))."""
     dx, dy = x - near_x, y - near_y
     return (dx * dx + dy * dy <= radius_xy_sq
-            and abs(_mod_two_pi(theta - near_theta + np.pi) - np.pi) <= radius_theta)
+            and abs(mod_two_pi(theta - near_theta + np.pi) - np.pi) <= radius_theta)
 
 
 @njit
@@ -128,8 +128,8 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
                 continue
             th_a = beta_a[e] - theta[i]
             th_b = beta_b[e] - theta[k]
-            half = 0.5 * (_mod_two_pi(th_b - th_a + np.pi) - np.pi)
-            th = _mod_two_pi(th_a + half + np.pi) - np.pi
+            half = 0.5 * (mod_two_pi(th_b - th_a + np.pi) - np.pi)
+            th = mod_two_pi(th_a + half + np.pi) - np.pi
             rhs_a, rhs_b = r_a[e] - rho[i], r_b[e] - rho[k]
             x = n_inv[e, 0, 0] * rhs_a + n_inv[e, 0, 1] * rhs_b
             y = n_inv[e, 1, 0] * rhs_a + n_inv[e, 1, 1] * rhs_b
@@ -143,22 +143,6 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
             out[h, 0], out[h, 1], out[h, 2] = x, y, th
             h += 1
     return out[:h]
-
-
-@njit
-def _mod_two_pi(u: float) -> float:
-    """``u % TWO_PI`` bit for bit (Python's and Numba's floor modulo: ``fmod``, then + 2π when
-    negative), without ``fmod`` where ``u`` lies within a period of [0, 2π): the remainder is
-    then ``u`` itself, ``u − 2π`` (exact, by Sterbenz's lemma, as ``fmod``'s) or ``u + 2π``
-    (the modulo's own correction, rounded the same). A local search's candidate loop calls it
-    on every candidate: on Freiburg 079's, 1.9–2.4 ms a call instead of 4.6–5.6 with ``%``."""
-    if 0.0 < u < TWO_PI:
-        return u
-    if TWO_PI <= u < 2.0 * TWO_PI:
-        return u - TWO_PI
-    if -TWO_PI < u < 0.0:
-        return u + TWO_PI
-    return u % TWO_PI  # zero (its sign), far outside, NaN
 
 
 def _within_budget(counts: NDArray[np.intp], budget: int) -> NDArray[np.intp]:
@@ -250,7 +234,7 @@ def _cells_of(poses: NDArray, cell_xy: float, cell_theta: float
 def _bin(pose: NDArray, cell_xy: float, cell_theta: float) -> tuple[int, int, int]:
     """The vote bin of a pose: (⌊x / c⌋, ⌊y / c⌋, ⌊(θ mod 2π) / c_θ⌋)."""
     return (int(np.floor(pose[0] / cell_xy)), int(np.floor(pose[1] / cell_xy)),
-            int(np.floor(_mod_two_pi(pose[2]) / cell_theta)))
+            int(np.floor(mod_two_pi(pose[2]) / cell_theta)))
 
 
 @njit

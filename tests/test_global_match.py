@@ -13,13 +13,12 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from houghloc import SegmentMap, observe_lines
-from houghloc.geometry import TWO_PI, relative, transform_points, wrap_angle
+from houghloc.geometry import TWO_PI, mod_two_pi, relative, transform_points, wrap_angle
 from houghloc.global_match import GlobalMatchConfig, global_match
-from houghloc.hypothesis_scores import seen_directly
+from houghloc.hypothesis_scores import END_GRAZE, cluster, seen_directly
 from houghloc.map_lookup import angle_index, inside_map, map_box, wall_distance
 from houghloc.match_result import GlobalResult, Neighbourhood
 from houghloc.pose_hypotheses import (
-    _mod_two_pi,
     observed_pairs,
     pair_hypotheses,
     vote_cells,
@@ -399,7 +398,7 @@ def test_segment_spans_cover_what_the_segments_cover(office: SegmentMap) -> None
 def test_the_candidate_loops_modulo_is_pythons_bit_for_bit(u: float) -> None:
     """The local search's candidate loop wraps angles without ``fmod`` where it can; the result
     must be the floor modulo's to the last bit (and sign of zero), or hypotheses would move."""
-    mine, python = _mod_two_pi(u), u % TWO_PI
+    mine, python = mod_two_pi(u), u % TWO_PI
     assert struct.pack("<d", mine) == struct.pack("<d", python) or (
         math.isnan(mine) and math.isnan(python)), (u, mine, python)
 
@@ -480,3 +479,53 @@ def test_neighbourhood_contains_what_its_radii_say(x: float, y: float, theta: fl
     if abs(math.hypot(x - 1.0, y + 2.0) - radius_xy) > margin and abs(
             abs(float(wrap_angle(theta - 0.5))) - radius_theta) > margin:
         assert bool(near.contains(pose)[0]) == inside
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 120), st.sampled_from([0.05, 0.5, 3.0]),
+       st.sampled_from([0.5, 5.0, 60.0]))
+def test_clusters_are_the_greedy_suppressions_of_the_best_poses(seed: int, n: int, spread: float,
+                                                                 radius_deg: float) -> None:
+    """Each kept pose is the best still free, and it frees no pose outside its radii."""
+    rng = np.random.default_rng(seed)
+    poses = np.column_stack((rng.uniform(-spread, spread, (n, 2)), rng.uniform(-7, 7, n)))
+    scores = rng.integers(0, 4, n).astype(float)  # ties: the earlier pose ranks first
+    config = GlobalMatchConfig(cluster_xy=0.3, cluster_theta_deg=radius_deg)
+    free, expected = np.ones(n, bool), []
+    for j in np.argsort(-scores, kind="stable"):
+        if free[j]:
+            expected.append(int(j))
+            free &= ~((np.hypot(*(poses[:, :2] - poses[j, :2]).T) <= config.cluster_xy)
+                      & (np.abs(wrap_angle(poses[:, 2] - poses[j, 2])) <= config.cluster_theta))
+    assert cluster(poses, scores, config) == expected
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.floats(-3, 23), st.floats(-3, 18), st.floats(-4, 4))
+def test_points_seen_through_walls_by_bearing_are_those_seen_by_every_wall(
+        office_large: SegmentMap, seed: int, x: float, y: float, theta: float) -> None:
+    """Trying only the walls a point's bearing crosses gives what trying every wall does,
+    from anywhere (beside a wall, on one, off the map)."""
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-15, 15, (200, 2))
+    points[:5] = 0.0  # at the robot
+    near = np.flatnonzero(office_large.is_wall)
+    starts, ends = office_large.starts[near], office_large.ends[near]
+    c, s = math.cos(theta), math.sin(theta)
+    expected = np.ones(len(points), bool)
+    for i, (px, py) in enumerate(points):
+        dx, dy = x + c * px - s * py - x, y + s * px + c * py - y
+        t_max = 1.0 - 0.25 / max(math.hypot(dx, dy), 1e-9)
+        for (p0x, p0y), (p1x, p1y) in zip(starts, ends, strict=True):
+            wx, wy, ex, ey = p0x - x, p0y - y, p1x - p0x, p1y - p0y
+            den = dx * ey - dy * ex
+            if abs(den) <= 1e-12:
+                continue
+            t, u = (wx * ey - wy * ex) / den, (wx * dy - wy * dx) / den
+            graze = END_GRAZE / max(math.hypot(ex, ey), END_GRAZE)
+            if 1e-6 < t < t_max and graze < u < 1.0 - graze:
+                expected[i] = False
+                break
+    pose = np.array([x, y, theta])
+    np.testing.assert_array_equal(
+        seen_directly(pose, points, office_large, ("wall",), 100.0, 0.25), expected)
