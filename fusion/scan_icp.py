@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from houghloc.geometry import wrap_scalar
+from houghloc.geometry import within_radius, wrap_scalar
 from houghloc.jit import fma, njit
 
 if TYPE_CHECKING:
@@ -60,7 +60,7 @@ def _scan_normals(points: NDArray, max_gap: float, radius: float, half_window: i
         count = sx = sy = sxx = sxy = syy = 0.0
         for j in range(max(0, i - half_window), min(n, i + half_window + 1)):
             dx, dy = points[j, 0] - points[i, 0], points[j, 1] - points[i, 1]
-            if math.hypot(dx, dy) <= radius and jump[j] == jump[i]:
+            if jump[j] == jump[i] and within_radius(dx, dy, radius):
                 count += 1.0
                 sx, sy = sx + dx, sy + dy
                 sxx, sxy, syy = sxx + dx * dx, sxy + dx * dy, syy + dy * dy

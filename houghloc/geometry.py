@@ -93,6 +93,18 @@ def mod_two_pi(u: float) -> float:
     return u % TWO_PI  # zero (its sign), far outside, NaN
 
 
+@njit
+def within_radius(dx: float, dy: float, radius: float) -> bool:
+    """``hypot(dx, dy) <= radius``, with the square root taken only where the squared length
+    is within a relative 1e-9 of ``radius``²: elsewhere its rounding cannot change the answer."""
+    d2, r2 = dx * dx + dy * dy, radius * radius
+    if d2 < r2 * (1.0 - 1e-9):
+        return True
+    if d2 > r2 * (1.0 + 1e-9):
+        return False
+    return math.hypot(dx, dy) <= radius
+
+
 def transform_points(pose: ArrayLike, points: NDArray[np.float64]) -> NDArray[np.float64]:
     """Map robot-frame points (N×2) to the parent frame of ``pose``."""
     x, y, t = np.asarray(pose, dtype=float)

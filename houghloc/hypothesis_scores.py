@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.displacement import Displacement, match_and_solve
-from houghloc.geometry import TWO_PI, mod_two_pi, wrap_angle
+from houghloc.geometry import TWO_PI, mod_two_pi, within_radius, wrap_angle
 from houghloc.jit import njit
 from houghloc.map_lookup import WallDistance
 from houghloc.matching import Matches
@@ -134,9 +134,10 @@ def _cluster_kernel(poses: NDArray, order: NDArray, radius_xy: float, radius_the
         kept[count] = j
         count += 1
         for i in range(n):
-            if (free[i] and math.hypot(poses[i, 0] - poses[j, 0], poses[i, 1] - poses[j, 1])
-                    <= radius_xy and abs(mod_two_pi(poses[i, 2] - poses[j, 2] + np.pi)
-                                         - np.pi) <= radius_theta):
+            if (free[i] and within_radius(poses[i, 0] - poses[j, 0], poses[i, 1] - poses[j, 1],
+                                          radius_xy)
+                    and abs(mod_two_pi(poses[i, 2] - poses[j, 2] + np.pi) - np.pi)
+                    <= radius_theta):
                 free[i] = False
                 left -= 1
         if left == 0:

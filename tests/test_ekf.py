@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from scipy.stats import chi2
 
@@ -20,7 +20,7 @@ from fusion.motion import (
     interpolate,
 )
 from fusion.tracker import PoseTracker
-from houghloc.geometry import compose, positive_definite, relative, wrap_angle
+from houghloc.geometry import compose, positive_definite, relative, within_radius, wrap_angle
 
 # Real odometry frames start anywhere: the CARMEN logs begin here.
 ODOM_ORIGIN = np.array([576.5, 0.1, -2.26])
@@ -503,3 +503,16 @@ def test_positive_definite_agrees_with_cholesky(k, seed, signs) -> None:
         expected = False
     assert positive_definite(m) is expected
     assert not positive_definite(np.full((k, k), np.nan))
+
+
+@settings(max_examples=500, deadline=None)
+@given(st.floats(), st.floats(), st.floats(0.0, 1e6), st.booleans(), st.floats(-1e-9, 1e-9))
+@example(0.6, 0.8, 1.0, False, 0.0)  # a radius of exactly the hypotenuse
+@example(3e-200, 4e-200, 5e-200, False, 0.0)  # squares that underflow
+def test_within_radius_is_hypots_comparison(dx: float, dy: float, radius: float,
+                                            on_circle: bool, nudge: float) -> None:
+    """The squared prefilter answers as ``hypot(dx, dy) <= radius`` does, to the last bit:
+    anywhere, and within a relative 1e-9 of the circle (``on_circle``)."""
+    if on_circle and math.isfinite(math.hypot(dx, dy)):
+        radius = math.hypot(dx, dy) * (1.0 + nudge)
+    assert within_radius(dx, dy, radius) is (math.hypot(dx, dy) <= radius)
