@@ -119,13 +119,21 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
     # on θ below decides.
     reach = near_radius + tol_max + 1e-6
     bound = math.cos(reach) if reach < np.pi else -2.0
+    # the cut is a pass over the window that only lists the survivors (no branch to mispredict
+    # on every candidate); they are solved after it, in the window's order
+    passed = np.empty(counts.max() if use_near and len(counts) else 0, np.intp)
     h = 0
     for p in range(len(pair_i)):
         i, k = pair_i[p], pair_k[p]
-        cos_c, sin_c = math.cos(theta[i] + near_theta), math.sin(theta[i] + near_theta)
-        for e in range(lo[p], lo[p] + counts[p]):
-            if use_near and cos_a[e] * cos_c + sin_a[e] * sin_c < bound:
-                continue
+        m = counts[p]
+        if use_near:
+            cos_c, sin_c = math.cos(theta[i] + near_theta), math.sin(theta[i] + near_theta)
+            m = 0
+            for e in range(lo[p], lo[p] + counts[p]):
+                passed[m] = e
+                m += cos_a[e] * cos_c + sin_a[e] * sin_c >= bound
+        for q in range(m):
+            e = passed[q] if use_near else lo[p] + q
             th_a = beta_a[e] - theta[i]
             th_b = beta_b[e] - theta[k]
             half = 0.5 * (mod_two_pi(th_b - th_a + np.pi) - np.pi)
