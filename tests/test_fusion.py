@@ -425,3 +425,58 @@ def test_global_steps_run_with_blas_on_one_thread_and_the_process_keeps_its_thre
     assert blas_threads() == before
     for step in (AmbiguityManager.collecting_step, AmbiguityManager.local_search):
         assert getattr(step, "__wrapped__", None) is not None  # limited
+
+
+# ---------------------------------------------------------------------------- warm-up
+_FIRST_USES = """
+import importlib, pkgutil, sys
+sys.path.insert(0, {repo!r})
+from numba.core.registry import CPUDispatcher
+import fusion, houghloc
+from fusion.scan_odometry import warm_up as warm_up_scan_matching
+from houghloc.jit import warm_up
+kernels = {{}}
+for package in (houghloc, fusion):
+    for module in pkgutil.walk_packages(package.__path__, package.__name__ + "."):
+        if "ros2" in module.name or module.name.endswith("__main__"):
+            continue
+        for name, value in vars(importlib.import_module(module.name)).items():
+            if isinstance(value, CPUDispatcher):
+                kernels[value.py_func.__module__ + "." + name] = value
+warm_up()
+warm_up_scan_matching()
+before = {{name: len(kernel.signatures) for name, kernel in kernels.items()}}
+{stream}
+print(sorted(name for name, kernel in kernels.items() if len(kernel.signatures) != before[name]
+             and name != "fusion.io.numbers._parse"))
+"""
+
+
+def _kernels_first_used_by(stream: str) -> str:
+    """The kernels a stream compiles or loads from the cache after the warm-up, in a fresh
+    process (CARMEN parsing left out: it is the log reader's, before any scan)."""
+    done = subprocess.run([sys.executable, "-c", _FIRST_USES.format(repo=str(REPO),
+                                                                   stream=stream)],
+                          capture_output=True, text=True, timeout=900, cwd=REPO)
+    assert done.returncode == 0, done.stderr[-2000:]
+    return done.stdout.strip().splitlines()[-1]
+
+
+def test_a_kidnap_and_its_relocalization_compile_no_kernel_after_the_warm_up() -> None:
+    """Every kernel a stream needs is compiled, or loaded, with the localizer: none on a scan
+    of it (a first use mid-run is seconds on a fresh install). Read-only beam angles included."""
+    stream = "from tests.test_ambiguity import kidnap_trial\nkidnap_trial(3)"
+    assert _kernels_first_used_by(stream) == "[]"
+
+
+def test_a_real_log_compiles_no_kernel_after_the_warm_up() -> None:
+    """Freiburg 079's first 600 scans: lines fitting two pieces of one wall (the second
+    matching pass), corridor views slid along their walls, scan odometry."""
+    from benchmarks.bench_real import DATA, datasets
+
+    fr079 = next(ds for ds in datasets() if ds.name == "fr079")
+    if not fr079.log.exists():
+        pytest.skip(f"real-data file {fr079.log} is not present (expected in {DATA})")
+    stream = ("from benchmarks.bench_real import datasets, run\n"
+              "run(next(ds for ds in datasets() if ds.name == 'fr079'), 600)")
+    assert _kernels_first_used_by(stream) == "[]"
