@@ -105,6 +105,23 @@ def within_radius(dx: float, dy: float, radius: float) -> bool:
     return math.hypot(dx, dy) <= radius
 
 
+@njit
+def bearing_span(p0x: float, p0y: float, p1x: float, p1y: float, step: float, n: int
+                 ) -> tuple[int, int]:
+    """The bearings that the segment from (p0x, p0y) to (p1x, p1y), relative to the origin,
+    spans seen from it (the shorter way round), as ``n`` bins of width ``step`` from angle 0:
+    (first, count), the bins (first + q) mod n, one wider on each side for rounding. All n
+    when the origin lies on or beside the segment, or a value is not finite."""
+    a0 = math.atan2(p0y, p0x)
+    gap = math.atan2(p1y, p1x) - a0
+    gap = (gap + np.pi) % TWO_PI - np.pi
+    if not abs(gap) <= np.pi - 2 * step:
+        return 0, n
+    low = a0 + min(gap, 0.0)
+    first = math.floor(low / step) - 1
+    return first, min(math.ceil((low + abs(gap)) / step) + 1 - first + 1, n)
+
+
 def transform_points(pose: ArrayLike, points: NDArray[np.float64]) -> NDArray[np.float64]:
     """Map robot-frame points (N×2) to the parent frame of ``pose``."""
     x, y, t = np.asarray(pose, dtype=float)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.displacement import Displacement, match_and_solve
-from houghloc.geometry import TWO_PI, mod_two_pi, within_radius, wrap_angle
+from houghloc.geometry import TWO_PI, bearing_span, mod_two_pi, within_radius, wrap_angle
 from houghloc.jit import njit
 from houghloc.map_lookup import WallDistance
 from houghloc.matching import Matches
@@ -270,15 +270,8 @@ def _walls_by_bearing(ox: float, oy: float, starts: NDArray, ends: NDArray
     lo = np.empty(len(starts), np.intp)
     count = np.empty(len(starts), np.intp)
     for j in range(len(starts)):
-        a0 = math.atan2(starts[j, 1] - oy, starts[j, 0] - ox)
-        gap = math.atan2(ends[j, 1] - oy, ends[j, 0] - ox) - a0
-        gap = (gap + np.pi) % TWO_PI - np.pi
-        if not abs(gap) <= np.pi - 2 * BEARING_STEP:  # beside the wall, or not finite
-            lo[j], count[j] = 0, n
-        else:
-            low = a0 + min(gap, 0.0)
-            lo[j] = math.floor(low / BEARING_STEP) - 1
-            count[j] = min(math.floor((low + abs(gap)) / BEARING_STEP) + 1 - lo[j] + 1, n)
+        lo[j], count[j] = bearing_span(starts[j, 0] - ox, starts[j, 1] - oy, ends[j, 0] - ox,
+                                       ends[j, 1] - oy, BEARING_STEP, n)
     first = np.zeros(n + 1, np.intp)
     for j in range(len(starts)):
         for q in range(count[j]):

@@ -97,7 +97,7 @@ def warm_up() -> float:
 
     A kernel is compiled the first time it is called with new argument types; the kernels'
     callers pass one layout (C-contiguous float64), so this one pass covers a whole run: no
-    kernel is compiled, or loaded, on a scan of the stream (``tests/test_package.py``).
+    kernel is compiled, or loaded, on a scan of the stream (``tests/test_fusion.py``).
     """
     global _warmed_up
     if _warmed_up is not None:

@@ -23,7 +23,7 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 from pydantic import ValidationError
 
-from houghloc.geometry import TWO_PI, Pose, ray_hit
+from houghloc.geometry import TWO_PI, Pose, bearing_span, ray_hit
 from houghloc.jit import njit
 from houghloc.map_file import MapFile, describe_error
 from houghloc.yaml_io import read_yaml
@@ -355,15 +355,8 @@ def _first_hits_and_clearance(dirs: NDArray, max_range: float, starts: NDArray, 
     for j in range(len(starts)):
         p0x, p0y = starts[j, 0] - ox, starts[j, 1] - oy
         ex, ey = ends[j, 0] - starts[j, 0], ends[j, 1] - starts[j, 1]
-        a0 = math.atan2(p0y, p0x)
-        gap = math.atan2(ends[j, 1] - oy, ends[j, 0] - ox) - a0
-        gap = (gap + np.pi) % TWO_PI - np.pi
-        if abs(gap) > np.pi - 2 * step:  # the origin on or beside the segment: every ray
-            i0, count = 0, n_rays
-        else:
-            low = a0 + min(gap, 0.0)
-            i0 = math.floor(low / step) - 1
-            count = min(math.ceil((low + abs(gap)) / step) + 1 - i0 + 1, n_rays)
+        # the rays within its extent (every ray when the origin is on or beside it)
+        i0, count = bearing_span(p0x, p0y, ends[j, 0] - ox, ends[j, 1] - oy, step, n_rays)
         for q in range(count):
             i = (i0 + q) % n_rays
             t = ray_hit(dirs[i, 0], dirs[i, 1], p0x, p0y, ex, ey)
