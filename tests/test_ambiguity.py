@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -761,3 +762,32 @@ def test_a_map_without_its_rooms_walls_is_tracked_through_by_odometry(seed):
     assert given_up == 0 and worst < 0.15
     given_up, worst = localize(None)
     assert given_up >= 1 and worst > 3.0
+
+
+def test_scans_that_match_nothing_give_tracking_up_then_leave_the_robot_lost(office):
+    """Scans of clutter that lies across the map's walls: tracking is given up on the points seen
+    through walls, and its belief is the first pose followed; global matches of such views find
+    nothing, and after ``failures_until_lost`` of them the robot is lost, with no belief left to
+    weigh poses against. The transitions chain and every reason is recorded."""
+    rng = np.random.default_rng(7)
+    loc = Localizer(office, LocalizerConfig.from_yaml(OFFICE), np.array([5.0, 6.0, 0.0]))
+    manager = loc.manager
+    followed_when_given_up = None
+    for k in range(400):
+        t = 0.1 * k
+        loc.on_odometry(t, 0.02 * k, 0.0, 0.0)
+        estimate = loc.on_points(t, rng.uniform(-8.0, 8.0, (150, 2)), "laser")
+        if manager.state is not State.TRACKING and followed_when_given_up is None:
+            followed_when_given_up, belief = manager.followed, estimate.pose
+        if manager.state is State.LOST:
+            break
+    steps = manager.transitions
+    assert manager.state is State.LOST, [(tr.new.value, tr.reason) for tr in steps]
+    assert steps[0].old is State.TRACKING and steps[0].new is State.COLLECTING
+    assert "through the map's walls" in steps[0].reason
+    assert followed_when_given_up is not None and len(followed_when_given_up) == 1
+    assert np.allclose(followed_when_given_up[0][0], belief, atol=1e-9)
+    assert all(later.old is earlier.new for earlier, later in pairwise(steps))
+    failed = [tr for tr in steps if tr.reason.startswith("no global hypothesis")]
+    assert len(failed) == manager.config.failures_until_lost and failed[-1].new is State.LOST
+    assert manager.belief.prior is None and manager.relocalization.match is None

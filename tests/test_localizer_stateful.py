@@ -2,14 +2,15 @@
 with late, repeated and jumping stamps and NaN, infinite and huge values.
 
 Invariants after every step: no exception (bad values are dropped and counted, never raised),
-a finite pose, a symmetric positive-definite covariance, and a history whose length stays
-bounded (memory flat however long the run). The default suite runs a few thousand steps; the
-slow suite 10⁵.
+a finite pose, a symmetric positive-definite covariance, a history whose length stays
+bounded (memory flat however long the run), and an ambiguity manager whose parts agree with
+its state. The default suite runs a few thousand steps; the slow suite 10⁵.
 """
 
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, ru
 
 from fusion.localizer import Localizer
 from fusion.sim.laser import true_ranges
+from fusion.status import State
 from houghloc import SegmentMap
 from tests.conftest import MAPS
 
@@ -86,6 +88,22 @@ class LocalizerMachine(RuleBasedStateMachine):
         assert np.isfinite(pose).all(), pose
         assert np.isfinite(cov).all() and np.allclose(cov, cov.T, atol=1e-9 * np.abs(cov).max())
         assert np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() > 0, cov
+
+    @invariant()
+    def the_manager_is_where_its_transitions_say(self) -> None:
+        """Each transition leaves the state the one before entered, the last one's is the
+        state; while tracking no pose is followed and no global match is under way; once lost
+        there is no belief to weigh poses against."""
+        if not hasattr(self, "loc"):
+            return
+        manager = self.loc.manager
+        steps = manager.transitions
+        assert all(later.old is earlier.new for earlier, later in pairwise(steps))
+        assert not steps or steps[-1].new is manager.state
+        if manager.state is State.TRACKING:
+            assert manager.followed == [] and manager.relocalization.match is None
+        if manager.state is State.LOST:
+            assert manager.belief.prior is None
 
     @invariant()
     def memory_is_bounded(self) -> None:
