@@ -94,7 +94,9 @@ class Relocalization:
 
     def step(self, t: float, odom: NDArray, points: NDArray, kinds: tuple[str, ...],
              hough: HoughConfig | None) -> Decision:
-        """One scan while not tracking (:meth:`AmbiguityManager.collecting_step`)."""
+        """One scan while not tracking: every followed (or tied) pose takes it, and may be taken;
+        else it joins the views, and when they are enough (and no match is under way) a global
+        match of them starts; a match under way advances by ``match_lookups_per_scan``."""
         if self.bank is not None and hough is not None:
             decision = self._take(t, self.bank.step(t, odom, points, hough,
                                                     self._least_right_fit()))
@@ -244,7 +246,8 @@ class Relocalization:
 
     def landmark_step(self, t: float, odom: NDArray, position: tuple[float, float],
                       bearing: float, label: str, tolerance: float) -> Decision:
-        """:meth:`AmbiguityManager.landmark_step`."""
+        """A landmark seen at ``bearing`` (``tolerance``: its 3σ) weighs the followed poses, or
+        drops the tied poses that would see it elsewhere; the pose when one is left or taken."""
         if self.bank is not None:
             verdict = self.bank.weigh_bearing(t, np.asarray(odom, float), position, bearing,
                                               tolerance / 3.0, self._least_right_fit())
