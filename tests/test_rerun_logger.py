@@ -9,6 +9,7 @@ through ``localize_scan``, so the logger sees real corrections; the ``.rrd`` is 
 from __future__ import annotations
 
 import inspect
+import math
 import subprocess
 import sys
 import time
@@ -226,6 +227,26 @@ def test_covariance_ellipse_is_the_95_percent_contour() -> None:
     ellipse = covariance_ellipse([1.0, 2.0], np.diag([0.04, 0.01]))
     d = ellipse - [1.0, 2.0]
     assert np.allclose((d**2 / [0.04, 0.01]).sum(axis=1), 5.991464547107979)
+
+
+@given(st.floats(1e-4, 1.0), st.floats(0.0, 1.0), st.floats(-math.pi, math.pi))
+def test_covariance_ellipse_of_any_covariance(sigma: float, ratio: float, angle: float) -> None:
+    """Any orientation, down to a degenerate covariance (a corridor's): a closed polyline whose
+    points lie on the 95 % contour, along the axes the eigendecomposition gives, within the
+    radius clamp."""
+    rotation = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    variances = np.array([sigma**2, (ratio * sigma) ** 2])
+    cov = rotation @ np.diag(variances) @ rotation.T
+    ellipse = covariance_ellipse([3.0, -1.0], cov)
+    assert ellipse.shape == (37, 2) and np.allclose(ellipse[0], ellipse[-1])
+    d = (ellipse - [3.0, -1.0]) @ rotation  # in the covariance's own axes
+    radii = np.sqrt(variances * 5.991464547107979)
+    assert np.hypot(d[:, 0], d[:, 1]).max() == pytest.approx(radii[0], rel=1e-9)  # major axis
+    assert np.abs(d[:, 1]).max() <= radii[1] * (1 + 1e-9) + 1e-7 * radii[0]  # rounding of C
+    if ratio > 1e-3:
+        assert np.allclose(((d / radii) ** 2).sum(axis=1), 1.0, atol=1e-6)
+    far = covariance_ellipse([0.0, 0.0], np.diag([1e6, 1e-6]))
+    assert np.abs(far).max() == pytest.approx(20.0)  # MAX_ELLIPSE_RADIUS
 
 
 def test_serving_binds_localhost_only(tmp_path: Path) -> None:
