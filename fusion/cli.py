@@ -1,9 +1,9 @@
 """The ``houghloc`` command line. It parses, calls the library, prints; the work lives elsewhere.
 
     houghloc demo                      the paper's RoboCup scenario, simulated and localized
-    houghloc run --map M --log L --out D [--config C] [--initial-pose X Y THETA] [--gt GT.tum]
+    houghloc run --map M --log L --out D [--config C] [--initial-pose X Y THETA] [--gt GT]
     houghloc sim --scenario NAME --out D [--seed S] [--duration SEC]
-    houghloc eval --est EST.tum --gt GT.tum [--relations FILE --time-offset S]
+    houghloc eval --est EST.tum --gt GT [--relations FILE --time-offset S]
     houghloc map build (--log CORRECTED_LOG | --grid ROS_MAP.yaml) --out MAP.yaml
     houghloc sweep --spec SPEC.yaml --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
     houghloc ros2 --map M [--config C] [--initial-pose X Y THETA] [--ros-args ...]
@@ -116,7 +116,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     gt_path = args.gt or source.ground_truth
     logger = _make_logger(args, args.out / "run.rrd")
     run = run_log(source, segment_map, initial_pose=_initial_pose(args, source.config),
-                  reference=Trajectory.from_tum(gt_path) if gt_path else None, out=args.out,
+                  reference=Trajectory.from_reference(gt_path) if gt_path else None, out=args.out,
                   logger=logger, progress=False if args.no_progress else None,
                   description=args.log.name,
                   metrics_extra={"map": str(args.map), "log_path": str(args.log),
@@ -206,7 +206,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
         raise CliError("give --gt (ground truth) and/or --relations")
     est = Trajectory.from_tum(args.est)
     if args.gt is not None:
-        ref = Trajectory.from_tum(args.gt)
+        ref = Trajectory.from_reference(args.gt)
         align = Alignment.SE2 if args.align else Alignment.NONE
         ate = ATE(alignment=align, max_dt=args.max_dt).compute(est, ref)
         if len(ate.position_errors) == 0:

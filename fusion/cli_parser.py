@@ -65,7 +65,8 @@ def build_parser(version: str) -> argparse.ArgumentParser:
                      help="ROS bags: the LaserScan topic (default /scan, else the only one)")
     run.add_argument("--odom-topic", metavar="TOPIC",
                      help="ROS bags: the Odometry topic (default /odom, else the only one)")
-    run.add_argument("--gt", type=Path, help="ground truth (TUM) for errors in metrics.json")
+    run.add_argument("--gt", type=Path, help="ground truth for errors in metrics.json: a TUM "
+                     "trajectory, or a corrected CARMEN log (the poses its scans carry)")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
     run.add_argument("--strict", action="store_true",
                      help="exit with status 3 when the run ends lost or most scans were not "
@@ -89,7 +90,8 @@ def build_parser(version: str) -> argparse.ArgumentParser:
                         "fraction (> 0.3 m or > 5°) against ground truth; relation errors "
                         "(Kümmerle et al. 2009) against a relations file.")
     ev.add_argument("--est", required=True, type=Path, help="estimated trajectory (TUM)")
-    ev.add_argument("--gt", type=Path, help="ground truth or reference poses (TUM)")
+    ev.add_argument("--gt", type=Path, help="ground truth or reference poses: a TUM trajectory, "
+                    "or a corrected CARMEN log (the poses its scans carry)")
     ev.add_argument("--relations", type=Path, help="relations file: t1 t2 dx dy dz r p yaw")
     ev.add_argument("--time-offset", type=float, default=0.0,
                     help="seconds subtracted from the relations' timestamps")

@@ -382,3 +382,25 @@ def test_packaged_configs_and_maps_are_found_by_name(tmp_path: Path,
     assert main(["run", "--map", "office", "--config", "no-such-config", "--log",
                  str(tmp_path), "--out", str(tmp_path / "o"), "--no-rerun"]) == 2
     assert "office-laser" in capsys.readouterr().err
+
+
+def test_eval_scores_against_a_corrected_carmen_log(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """``--gt`` takes the corrected log a map was built from (its scans' poses), as a user who
+    maps a building and localizes its raw data has it: an estimate 5 cm off every corrected
+    pose scores 5 cm."""
+    from fusion.io import write_tum
+
+    poses = np.array([[1.0, 2.0, 0.1], [1.5, 2.1, 0.2], [2.0, 2.3, 0.4]])
+    lines = []
+    for k, pose in enumerate(poses):
+        t = 10.0 + k
+        p = " ".join(f"{v:.9g}" for v in (*pose, *pose))
+        lines += [f"ODOM {pose[0]} {pose[1]} {pose[2]} 0 0 0 {t} host {t}",
+                  f"FLASER 3 1 2 3 {p} {t} host {t}",
+                  f"ODOM {pose[0]} {pose[1]} {pose[2]} 0 0 0 0 host {t}"]  # re-anchoring
+    corrected = write_log(tmp_path / "corrected.log", lines)
+    est = write_tum(tmp_path / "est.tum", 10.0 + np.arange(3), poses + [0.05, 0.0, 0.0])
+    assert main(["eval", "--est", str(est), "--gt", str(corrected)]) == 0
+    out = capsys.readouterr().out
+    assert "matched 3 of 3 poses" in out and "RMSE     5.00 cm" in out

@@ -27,6 +27,7 @@ from fusion.io import (
     open_log,
     read_carmen,
     read_intel_mat,
+    read_reference,
     read_relations,
     read_rosbag,
     read_tum,
@@ -412,6 +413,29 @@ def test_raw_odometry_flag_overrides_detection(tmp_path):
     odometry, scans = split(list(log))
     assert not log.corrected and scans[0].reference is None
     assert len(odometry) > len(raw)  # the anchors are taken as odometry: the caller asked for it
+
+
+
+def test_a_reference_is_a_tum_file_or_the_poses_a_corrected_log_carries(tmp_path):
+    """``read_reference`` (``--gt``): a corrected CARMEN log's scan poses, plain or gzip; a TUM
+    file as ``read_tum`` reads it; a raw log, whose scans carry no corrected pose, is refused
+    with the reason."""
+    lines, raw = corrected_log(np.random.default_rng(3))
+    plain = write_log(tmp_path / "corr.log", lines)
+    scans = [e for e in read_carmen(plain) if isinstance(e, Scan)]
+    t, poses = read_reference(plain)
+    assert len(t) == 12 and t.tolist() == [s.t for s in scans]
+    np.testing.assert_array_equal(poses, [s.reference for s in scans])
+    t_gz, poses_gz = read_reference(write_log(tmp_path / "corr.log.gz", lines, compress=True))
+    np.testing.assert_array_equal(t_gz, t)
+    np.testing.assert_array_equal(poses_gz, poses)
+    tum = write_tum(tmp_path / "ref.tum", t, poses)
+    for got, expected in zip(read_reference(tum), read_tum(tum), strict=True):
+        np.testing.assert_array_equal(got, expected)
+    uncorrected = [odom_line(*pose, 10.0 + 0.2 * k) for k, pose in enumerate(raw)]
+    uncorrected.insert(5, flaser_line([1.0, 2.0], raw[4], raw[4], 10.8))
+    with pytest.raises(LogError, match="no corrected pose"):
+        read_reference(write_log(tmp_path / "raw.log", uncorrected))
 
 
 # -- TUM, atomic files, relations ------------------------------------------------------------------

@@ -49,10 +49,9 @@ def reference_poses(path: Path, scans: list[Scan] | None = None) -> Trajectory:
     pose takes the stamp of the raw scan with the same ranges: reference logs print stamps with
     six significant digits (1–10 ms) while a raw log may deliver scans in bursts 1 ms apart,
     turning on the spot by degrees from one to the next."""
-    from fusion.io import open_log
+    from fusion.io import corrected_scans
 
-    events, _ = open_log(path)
-    ref_scans = [e for e in events if isinstance(e, Scan) and e.reference]
+    ref_scans = corrected_scans(path)
     times = np.array([e.t for e in ref_scans], dtype=float)
     if scans:
         times = _stamps_of_identical_scans(ref_scans, times, scans)

@@ -77,6 +77,13 @@ class Trajectory:
 
         return cls(*read_tum(path))
 
+    @classmethod
+    def from_reference(cls, path: Any) -> Trajectory:
+        """A TUM file, or the corrected poses of a CARMEN log (:func:`fusion.io.read_reference`)."""
+        from fusion.io import read_reference
+
+        return cls(*read_reference(path))
+
 
 @dataclass(frozen=True)
 class Association:

@@ -10,6 +10,9 @@
 
 All readers stream: they return an iterable of events plus a ``ReadStats`` that fills as the
 events are consumed. Every reader raises ``LogError`` for a file it cannot use.
+
+``read_reference(path)`` reads a reference trajectory to score a run against: a TUM file, or the
+corrected poses a CARMEN log's laser records carry.
 """
 
 from __future__ import annotations
@@ -19,7 +22,10 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from fusion.events import Event, ReadStats
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.events import Event, ReadStats, Scan
 from fusion.io.camera_points import read_camera_points
 from fusion.io.carmen import CarmenLog, read_carmen
 from fusion.io.carmen_records import FlaserSpacing, flaser_angles
@@ -28,6 +34,7 @@ from fusion.io.files import atomic_write_json, atomic_write_text
 from fusion.io.intel_mat import IntelMatLog, read_intel_mat
 from fusion.io.relations import INTEL_TIME_OFFSET, Relations, read_relations
 from fusion.io.rosbag import RosbagLog, read_rosbag
+from fusion.io.textfile import open_text_log
 from fusion.io.timing import MAX_TIME_STEP, StrayStampFilter, from_first_scan
 from fusion.io.tum import TrajectoryValueError, TumWriter, read_tum, write_tum
 
@@ -48,6 +55,7 @@ __all__ = [
     "TumWriter",
     "atomic_write_json",
     "atomic_write_text",
+    "corrected_scans",
     "flaser_angles",
     "from_first_scan",
     "is_rosbag",
@@ -56,6 +64,7 @@ __all__ = [
     "read_camera_points",
     "read_carmen",
     "read_intel_mat",
+    "read_reference",
     "read_relations",
     "read_rosbag",
     "read_tum",
@@ -90,6 +99,42 @@ def open_log(
     """
     events, stats = _open_reader(Path(path), extra_sources, reader_options)
     return iter(StrayStampFilter(events, stats, name=str(path))), stats
+
+
+def read_reference(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """A reference trajectory, times (N,) and poses N×3, sorted by time: a TUM file
+    (:func:`read_tum`), or a corrected CARMEN log (plain or gzip), whose laser records carry
+    the corrected poses (:func:`corrected_scans`). Raises ``LogError`` naming the problem."""
+    path = Path(path)
+    if not _starts_with_a_record(path):
+        return read_tum(path)
+    scans = corrected_scans(path)
+    if not scans:
+        raise LogError(path, "a CARMEN log whose laser records carry no corrected pose (its "
+                             "odometry is raw): give a corrected log or a TUM trajectory")
+    times = np.array([s.t for s in scans], dtype=float)
+    order = np.argsort(times, kind="stable")
+    poses = np.array([s.reference for s in scans], dtype=float).reshape(-1, 3)
+    return times[order], poses[order]
+
+
+def corrected_scans(path: str | Path) -> list[Scan]:
+    """The scans of a CARMEN log that carry a corrected pose (none for a raw log)."""
+    events, _ = open_log(path)
+    return [e for e in events if isinstance(e, Scan) and e.reference is not None]
+
+
+def _starts_with_a_record(path: Path) -> bool:
+    """Does the first line that is neither blank nor a comment start with a word (a CARMEN
+    record's name) rather than a number (a TUM line)?"""
+    if not path.is_file():
+        return False  # read_tum says what is wrong
+    with open_text_log(path) as f:
+        for line in f:
+            tokens = line.split(maxsplit=1)
+            if tokens and not tokens[0].startswith("#"):
+                return tokens[0][:1].isalpha()
+    return False
 
 
 def is_rosbag(path: str | Path) -> bool:
