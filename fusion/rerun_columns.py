@@ -90,7 +90,8 @@ class ColumnBatch:
 
     One ``log`` call costs ~100 µs whatever its size; a row in a batch costs a few µs. A row is
     one time (``t``, ``scan``) with ``length`` instances; every field holds that many instances
-    (``strips``: a list of polylines; other lists: strings; arrays: stacked along axis 0).
+    (``strips``: a list of polylines; other lists: strings; arrays: stacked along axis 0; a float:
+    one instance, a time series' value).
     """
 
     def __init__(self, entity: str, archetype: Any) -> None:
@@ -124,6 +125,8 @@ def join_rows(name: str, rows: list) -> Any:
         return strips_array([strip for row in rows for strip in row])
     if isinstance(rows[0], list):
         return pa.array([item for row in rows for item in row], type=pa.utf8())
+    if isinstance(rows[0], float):
+        return np.array(rows)
     return np.concatenate(rows)
 
 

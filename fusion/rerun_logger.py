@@ -93,7 +93,7 @@ from fusion.rerun_view import (
     own_row,
 )
 from fusion.status import ScanStatus
-from houghloc.geometry import compose, relative, transform_points, wrap_angle
+from houghloc.geometry import compose, relative, wrap_angle
 
 if TYPE_CHECKING:
     from fusion.localizer import Estimate
@@ -110,6 +110,9 @@ UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulat
 METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
            "sigma/theta", "matches", "error/position", "error/heading", "along_corridor")
 _DEGREES = np.array([1.0, 1.0, 180.0 / math.pi])
+_METRIC_ENTITY = {name: f"metrics/{name}" for name in METRICS}
+_STATUS_RGBA = {status: np.array([rgba], dtype=np.uint8) for status, rgba in STATUS_COLOURS.items()}
+_UNMATCHED_RGBA = np.array([UNMATCHED], dtype=np.uint8)
 
 
 # ------------------------------------------------------------------------------- the logger
@@ -344,13 +347,16 @@ class RerunLogger:
     def _scan_points(self, t: float, index: int, entity: str, points: Any, correction: Any,
                      pose: NDArray[np.float64]) -> None:
         pts = np.asarray(points, dtype=float).reshape(-1, 2)
-        finite = np.isfinite(pts).all(axis=1)
-        if not finite.all():
-            pts = pts[finite]  # the Hough method dropped them too: members index what is left
+        if not math.isfinite(pts.sum()):  # one pass in the usual case, where all are finite
+            # the Hough method dropped them too: members index what is left
+            pts = pts[np.isfinite(pts).all(axis=1)]
         rows = self._point_rows(len(pts), correction)  # may grow the colour table
         colours = self._colours.table[rows]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        world = pts @ np.array([[c, s], [-s, c]])  # transform_points, for drawing
+        world += pose[:2]
         self._batch(entity, rr.Points2D, self._styles["points"]).add(
-            t, index, len(pts), positions=transform_points(pose, pts), colors=colours)
+            t, index, len(pts), positions=world, colors=colours)
 
     def _point_rows(self, n: int, correction: Any) -> NDArray[np.intp]:
         """Colour-table row of each point: its matched map line, else −2 on a line, else −1."""
@@ -388,7 +394,7 @@ class RerunLogger:
 
     def _robot(self, t: float, index: int, pose: NDArray[np.float64], cov: NDArray[np.float64],
                status: ScanStatus) -> None:
-        colour = np.array([STATUS_COLOURS.get(status, UNMATCHED)], dtype=np.uint8)
+        colour = _STATUS_RGBA.get(status, _UNMATCHED_RGBA)
         self._batch("world/robot/estimate", rr.Arrows2D).add(
             t, index, 1, origins=pose[None, :2], vectors=heading_vector(pose), colors=colour,
             labels=[status])
@@ -432,7 +438,8 @@ class RerunLogger:
         if grid is None or lines is None:
             peaks = np.empty((0, 2))
         else:
-            peaks = hough_pixels(grid, lines.theta, lines.rho)
+            line_theta = own_row(grid, lines.theta)  # each peak's θ in its own row, once
+            peaks = hough_pixels(grid, line_theta, lines.rho, wrap=False)
         peak_rows = np.full(len(peaks), -2, dtype=np.intp)
         if refs is None or grid is None:
             ref_ids, ref_pixels = np.empty(0, np.intp), np.empty((0, 2))
@@ -445,11 +452,11 @@ class RerunLogger:
                 and lines is not None and refs is not None):
             peak_rows[matches.line] = ref_ids[matches.ref]
             # the reference's θ taken nearest the peak's, so a pair across θ = 0 ≡ 2π is short
-            theta_line = own_row(grid, lines.theta[matches.line])
+            theta_line = line_theta[matches.line]
             theta_ref = theta_line + wrap_angle(refs.theta[matches.ref] - theta_line)
-            ends = np.stack((peaks[matches.line],
-                             hough_pixels(grid, theta_ref, refs.rho[matches.ref], wrap=False)),
-                            axis=1)
+            ends = np.empty((len(matches), 2, 2))  # each peak to its reference, in pixels
+            ends[:, 0] = peaks[matches.line]
+            ends[:, 1] = hough_pixels(grid, theta_ref, refs.rho[matches.ref], wrap=False)
         table = self._colours.table
         self._batch("hough/peaks", rr.Points2D).add(
             t, index, len(peaks), positions=peaks, colors=table[peak_rows])
@@ -503,14 +510,12 @@ class RerunLogger:
         self._error_series.add_estimate(t, index, pose)
 
     def _scalar(self, name: str, t: float, index: int, value: float) -> None:
-        self._batch(f"metrics/{name}", rr.Scalars).add(
-            t, index, 1, scalars=np.array([value], dtype=float))
+        self._batch(_METRIC_ENTITY[name], rr.Scalars).add(t, index, 1, scalars=float(value))
 
     def _errors(self, final: bool) -> None:
         """The error series of the estimates whose truth has arrived (:class:`ErrorSeries`)."""
         for name, t, scan, value in self._error_series.ready(final):
-            self._batch(f"metrics/{name}", rr.Scalars).add(t, scan, 1,
-                                                          scalars=np.array([value]))
+            self._batch(f"metrics/{name}", rr.Scalars).add(t, scan, 1, scalars=float(value))
 
     # ---------------------------------------------------------------- serving
     def _start_web_viewer(self, web_port: int) -> None:

@@ -129,8 +129,13 @@ def hough_pixels(grid: Any, theta: ArrayLike, rho: ArrayLike,
     θ is used as given (an end of a segment may then lie just outside the image).
     """
     theta = own_row(grid, theta) if wrap else np.asarray(theta, dtype=float)
-    return np.column_stack(((np.asarray(rho, dtype=float) - grid.rho_min) / grid.rho_step,
-                            theta / grid.theta_step + 0.5))
+    out = np.empty((len(theta), 2))  # filled in place: these are a few values, every scan
+    u, v = out[:, 0], out[:, 1]
+    np.subtract(rho, grid.rho_min, out=u)
+    u /= grid.rho_step
+    np.divide(theta, grid.theta_step, out=v)
+    v += 0.5
+    return out
 
 
 def own_row(grid: Any, theta: ArrayLike) -> NDArray[np.float64]:
