@@ -102,6 +102,8 @@ class LineColours:
 
     def label(self, ids: NDArray[np.intp]) -> list[str]:
         known = len(self.names)
+        if len(ids) == 0 or int(ids.max()) < known:  # the usual case: lines of the logged map
+            return self.names[ids].tolist()  # set_map's names are strings
         return [str(self.names[i]) if i < known else f"line {i}" for i in ids.tolist()]
 
 
