@@ -19,7 +19,8 @@ Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D trans
     world/path/{estimate,odometry,truth}/<k>  the paths, in pieces (see below); odometry is
                                               est₀ ⊕ (odom₀⁻¹ ⊕ odomₖ), anchored at the first scan;
                                               the newest piece labelled with the path's name
-    hough/accumulator                         DepthImage of the votes, viridis colour map
+    hough/accumulator                         DepthImage of the votes, viridis colour map (8 bits
+                                              when the first scan has ≤ 255 points, else 16)
     hough/peaks, hough/references             Points2D in accumulator pixels (references labelled
                                               with their segment ids)
     hough/matches                             LineStrips2D, observed line → its reference point
@@ -175,6 +176,7 @@ class RerunLogger:
         self._styled: set[str] = set()
         self._batched_scans = 0
         self._accumulator_entities: dict[tuple[int, int], str] = {}
+        self._image_type: dict[str, type[np.unsignedinteger]] = {}  # each Hough image's pixels
         self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
@@ -483,18 +485,24 @@ class RerunLogger:
         per entity: a grid of another shape (another sensor's settings) gets its own entity."""
         if votes is None:
             return
-        # uint16 halves what is copied and sent; a cell gets at most one vote per point, and a
-        # scan of more than 65535 points is shown saturated
-        image = (votes if n_points <= 65535 else np.minimum(votes, 65535)).astype(np.uint16)
-        h, w = image.shape
+        h, w = votes.shape
         entity = self._accumulator_entities.setdefault(
             (h, w), "hough/accumulator" if not self._accumulator_entities
             else f"hough/accumulator/{h}x{w}")
         batch = self._batches.get(entity)
-        if batch is None:  # the style once: building it costs more than the row
+        if batch is None:  # the format and style once: building them costs more than the row
+            # A cell gets at most one vote per point: 8 bits hold every vote of a sensor whose
+            # first scan has at most 255 points (a 180-beam laser: half the bytes of 16 bits);
+            # a later scan of more points is drawn saturated there. 16 bits otherwise.
+            self._image_type[entity] = np.uint8 if n_points <= 255 else np.uint16
             batch = self._batch(entity, rr.DepthImage, rr.DepthImage.from_fields(
-                format=rr.components.ImageFormat(width=w, height=h, channel_datatype="U16"),
+                format=rr.components.ImageFormat(
+                    width=w, height=h,
+                    channel_datatype="U8" if self._image_type[entity] is np.uint8 else "U16"),
                 meter=1.0, colormap="viridis", draw_order=0.0))
+        dtype = self._image_type[entity]
+        top = int(np.iinfo(dtype).max)
+        image = (votes if n_points <= top else np.minimum(votes, top)).astype(dtype)
         batch.add(t, index, 1, buffer=image.reshape(1, -1).view(np.uint8))
         if len(batch.t) >= IMAGE_BATCH:
             batch.send(self.stream, self._time_column)

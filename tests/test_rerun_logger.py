@@ -187,6 +187,45 @@ def test_accumulator_every_n_scans(tmp_path: Path, robocup: SegmentMap, drive: l
     assert scan_indices(recording["hough/peaks"]) == list(range(N_SCANS))
 
 
+def recorded_images(path: Path, dtype: type, shape: tuple[int, int]) -> list[np.ndarray]:
+    """The Hough images of a recording, in scan order, decoded as ``dtype`` pixels."""
+    rows = [row for b in chunks_by_entity(path)["hough/accumulator"]
+            if "DepthImage:buffer" in b.schema.names
+            for row in b.column("DepthImage:buffer").to_pylist()]  # one buffer a row
+    return [np.frombuffer(bytes(buffer), dtype=dtype).reshape(shape) for [buffer] in rows]
+
+
+def test_the_hough_image_is_the_accumulator(tmp_path: Path, robocup: SegmentMap,
+                                            drive: list) -> None:
+    """The recorded image is the votes cell for cell: 16 bits for 361-beam scans; 8 bits when
+    the first scan has at most 255 points (a cell gets at most one vote per point), where a
+    later scan with more votes in a cell is drawn saturated at 255."""
+    path = tmp_path / "wide.rrd"
+    replay(RerunLogger(path), robocup, drive)
+    votes = [fix.accumulator for _, _, _, fix, _ in drive]
+    assert max(fix.n_points for _, _, _, fix, _ in drive) > 255
+    for image, expected in zip(recorded_images(path, np.uint16, votes[0].shape), votes,
+                               strict=True):
+        np.testing.assert_array_equal(image, expected)
+    path = tmp_path / "narrow.rrd"
+    logger = RerunLogger(path)
+    logger.log_map(robocup)
+    expected = []
+    for i, (t, truth, points, fix, estimate) in enumerate(drive[:3]):
+        if i < 2:  # a 180-beam laser's scans, then a dense one: 600 points on one wall
+            points = wall_scan(robocup, truth, n_beams=180, seed=i)
+        else:
+            points = np.column_stack((np.full(600, 2.0), np.linspace(-3.0, 3.0, 600)))
+        fix = localize_scan(points, robocup, truth)
+        logger.log_scan(t, i, "laser", points, fix, estimate)
+        expected.append(np.minimum(fix.accumulator, 255))
+    logger.close()
+    assert fix.accumulator.max() > 255  # the saturation is seen
+    for image, votes_seen in zip(recorded_images(path, np.uint8, expected[0].shape), expected,
+                                 strict=True):
+        np.testing.assert_array_equal(image, votes_seen)
+
+
 def test_unix_clock_becomes_a_timestamp_timeline(tmp_path: Path, robocup: SegmentMap,
                                                  drive: list) -> None:
     path = tmp_path / "wall-clock.rrd"
