@@ -94,7 +94,7 @@ from fusion.rerun_view import (
     own_row,
 )
 from fusion.status import ScanStatus
-from houghloc.geometry import compose, relative, wrap_angle
+from houghloc.geometry import compose, relative, transform_points, wrap_angle
 
 if TYPE_CHECKING:
     from fusion.localizer import Estimate
@@ -361,11 +361,8 @@ class RerunLogger:
             pts = pts[np.isfinite(pts).all(axis=1)]
         rows = self._point_rows(len(pts), correction)  # may grow the colour table
         colours = self._colours.table[rows]
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        world = pts @ np.array([[c, s], [-s, c]])  # transform_points, for drawing
-        world += pose[:2]
         self._batch(entity, rr.Points2D, self._styles["points"]).add(
-            t, index, len(pts), positions=world, colors=colours)
+            t, index, len(pts), positions=transform_points(pose, pts), colors=colours)
 
     def _point_rows(self, n: int, correction: Any) -> NDArray[np.intp]:
         """Colour-table row of each point: its matched map line, else −2 on a line, else −1."""
