@@ -96,6 +96,11 @@ class HoughConfig(BaseModel):
     max_observable_sigma: float = Field(
         0.5, gt=0.0, description="m; a direction known worse than this is reported unobservable"
     )
+    # --- the fix polished on the scan's points (docs/method.md §5)
+    polish_gate: float | None = Field(
+        0.12, gt=0.0, description="m; a point farther than this from every wall of the map at the "
+        "fix is not on one (clutter, a passer-by) and stays out of the polish; None: the fix as "
+        "the lines give it")
 
     @model_validator(mode="after")
     def _grid_fits_in_memory(self) -> HoughConfig:

@@ -1,7 +1,7 @@
-"""One scan to one pose correction: the paper's five steps, then the refinement
-(docs/method.md §3).
+"""One scan to one pose correction: the paper's five steps, the lines' refinement
+(docs/method.md §3) and the pose polished on the scan's points (§5).
 
-    points ─▶ vote ─▶ peaks ─▶ refine ─▶ associate with the map ─▶ displacement ─▶ pose
+    points ─▶ vote ─▶ peaks ─▶ refine ─▶ associate with the map ─▶ displacement ─▶ polish ─▶ pose
 
 This is where a scan becomes a pose. Everything here is a pure function of its arguments.
 """
@@ -17,11 +17,18 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from houghloc.config import HoughConfig
-from houghloc.displacement import UNOBSERVED_VARIANCE, estimate_displacement, match_and_solve
+from houghloc.displacement import (
+    UNOBSERVED_VARIANCE,
+    Displacement,
+    estimate_displacement,
+    match_and_solve,
+)
 from houghloc.geometry import TWO_PI, inverse_3x3, wrap_scalar
 from houghloc.jit import njit
+from houghloc.map_lookup import wall_cells
 from houghloc.matching import Matches, gate_threshold, reassociate
 from houghloc.peaks import _peaks_kernel, find_peaks
+from houghloc.polish import polish_fix
 from houghloc.refine import Lines, _refine_kernel
 from houghloc.segment_map import References, SegmentMap
 from houghloc.transform import HoughGrid, _vote_kernel, make_grid, vote
@@ -107,12 +114,7 @@ def observe_lines(points: NDArray[np.float64], config: HoughConfig
     if config.refine:  # the usual case: the three steps in one compiled call
         pts = np.ascontiguousarray(points, dtype=float)
         unit = config.range_sigma_growth <= 0
-        if unit:
-            weights = _NO_WEIGHTS
-        else:  # σᵢ = σ₀ + k·dᵢ²: weight 1/σᵢ², relative (mean 1)
-            sigma = config.range_sigma_base + config.range_sigma_growth * (pts**2).sum(axis=1)
-            weights = 1.0 / sigma**2
-            weights *= len(weights) / weights.sum()
+        weights = _NO_WEIGHTS if unit else point_weights(pts, config)
         acc, *found = _observe_kernel(
             pts, weights, unit, grid.half_trig32, grid.signed_cells, grid.margin_cells,
             grid.n_rho, grid.theta_step, grid.rho_step, grid.rho_min,
@@ -135,6 +137,16 @@ def observe_lines(points: NDArray[np.float64], config: HoughConfig
 
 
 _NO_WEIGHTS = np.empty(0)
+
+
+def point_weights(points: NDArray[np.float64], config: HoughConfig) -> NDArray[np.float64]:
+    """Each point's weight 1/σᵢ², relative (mean 1), for a sensor whose noise grows with range
+    (σᵢ = σ₀ + k·dᵢ², ``range_sigma_base`` and ``range_sigma_growth``); all 1 for a laser."""
+    if config.range_sigma_growth <= 0:
+        return np.ones(len(points))
+    sigma = config.range_sigma_base + config.range_sigma_growth * (points**2).sum(axis=1)
+    weights = 1.0 / sigma**2
+    return weights * (len(weights) / weights.sum())
 
 
 @njit
@@ -258,8 +270,14 @@ def localize_scan(
         f"rank {disp.rank}: unobservable along "
         + ", ".join(_direction_name(v) for v in disp.unobservable.T)]
     ambiguous = bool(doubts) or (len(matches.ambiguous_lines) > 0 and not lenient)
+    cov, information = disp.cov, disp.information
+    polished = _polished(points, map, pose, disp, config)
+    if polished is not None:
+        pose, cov, information = polished
+        wrapped = _wrapped(np.array([pose[0] - guess[0], pose[1] - guess[1],
+                                     pose[2] - guess[2]]))
     return ScanCorrection(
-        guess, pose, wrapped, disp.cov, disp.information, disp.rank, disp.observable,
+        guess, pose, wrapped, cov, information, disp.rank, disp.observable,
         disp.unobservable, matches, ambiguous, "; ".join(rank_note + doubts + notes),
         matched_map_lines=refs.line[matches.ref],
         references=refs, **{k: v for k, v in stages.items() if k != "references"})
@@ -273,6 +291,25 @@ def _checked_guess(guess: ArrayLike) -> NDArray[np.float64]:
         if math.isfinite(x) and math.isfinite(y) and math.isfinite(theta):
             return np.array([x, y, wrap_scalar(theta)])
     raise ValueError(f"guess must be three finite numbers (x, y, θ), got {values!r}")
+
+
+def _polished(points: NDArray, map: SegmentMap, pose: NDArray, disp: Displacement,
+              config: HoughConfig) -> tuple[NDArray, NDArray, NDArray] | None:
+    """The fix polished on the scan's points (:mod:`houghloc.polish`), in the directions it
+    observed, kept within the lines' own χ² gate: its pose, covariance and information; None
+    where the points do not pin it or disagree with the lines."""
+    if config.polish_gate is None or disp.rank < 2:
+        return None
+    cells = wall_cells(map, config.reference_kinds, config.polish_gate)
+    weights = None if config.range_sigma_growth <= 0 else point_weights(points, config)
+    found = polish_fix(points, weights, cells, pose, disp.cov, disp.observable,
+                       disp.unobservable, gate_threshold(config.gate_probability, disp.rank),
+                       UNOBSERVED_VARIANCE, config)
+    if found is None:
+        return None
+    polished, cov, information = found
+    polished[2] = wrap_scalar(polished[2])
+    return polished, cov, information
 
 
 def _flagged(guess: NDArray, reason: str, matches: Matches, stages: dict) -> ScanCorrection:

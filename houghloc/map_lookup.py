@@ -1,6 +1,7 @@
-"""The map as the global matcher looks it up, built once per map and kept beside it: the angle
-index of map-line pairs (hypothesis generation, :mod:`houghloc.pose_hypotheses`) and the
-distance transform of its walls (every score). Each is cached on the :class:`SegmentMap` by its
+"""The map as the global matcher and the polish look it up, built once per map and kept beside
+it: the angle index of map-line pairs (hypothesis generation, :mod:`houghloc.pose_hypotheses`),
+the distance transform of its walls (every score) and the walls near each cell (the polish,
+:mod:`houghloc.polish`). Each is cached on the :class:`SegmentMap` by its
 settings and freed with it.
 """
 
@@ -16,6 +17,7 @@ from numpy.typing import NDArray
 
 from houghloc.geometry import TWO_PI
 from houghloc.jit import njit
+from houghloc.polish import WallCells, build_wall_cells
 from houghloc.segment_map import MapError, SegmentMap, check_grid_size
 
 
@@ -290,6 +292,12 @@ def _build_wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
     dist = (cv2.distanceTransform(image, cv2.DIST_L2, cv2.DIST_MASK_PRECISE) * cell)
     dist[[0, -1], :] = dist[:, [0, -1]] = np.inf  # off the grid is far from every wall
     return WallDistance(dist.astype(np.float32), origin, cell)
+
+
+def wall_cells(map: SegmentMap, kinds: tuple[str, ...], gate: float) -> WallCells:
+    """The (cached) segments of ``kinds`` near each cell of side ``gate``
+    (:func:`houghloc.polish.build_wall_cells`)."""
+    return _cached(map, ("wall_cells", kinds, gate), lambda: build_wall_cells(map, kinds, gate))
 
 
 def inside_map(poses: NDArray, map: SegmentMap, kinds: tuple[str, ...],

@@ -206,7 +206,8 @@ def test_degenerate_pose_covariances_give_finite_results(robocup, pose_cov) -> N
 
 
 def test_grid_only_mode_is_the_papers_precision(robocup) -> None:
-    """Without refinement the result is bounded by the grid (the paper's 3° × 10 cm)."""
+    """Without refinement the result is bounded by the grid (the paper's 3° × 10 cm). The
+    paper's method has no polish either: the polish would bring these fixes to millimetres."""
     rng = np.random.default_rng(5)
     errs = []
     for _ in range(30):
@@ -214,7 +215,7 @@ def test_grid_only_mode_is_the_papers_precision(robocup) -> None:
         scan = laser_scan(robocup, true, rng, LASER)
         points = ranges_to_points(scan.ranges, scan.angles, 10.0)
         c = localize_scan(points, robocup, true + [0.05, 0.05, 0.02],
-                          config=HoughConfig(refine=False))
+                          config=HoughConfig(refine=False, polish_gate=None))
         if c.ok:
             errs.append(math.hypot(*(c.pose[:2] - true[:2])))
     assert len(errs) >= 10

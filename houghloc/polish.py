@@ -1,0 +1,327 @@
+"""The fix polished on the scan's points (docs/method.md §5).
+
+The Hough fix reads the pose off the lines whose peaks the scan voted for: walls long enough and
+dense enough to be lines. The scan's other points lie on the map's walls too — door frames,
+short pieces, the ends of corridors, corners — and the lines' own points weigh by their number.
+So the fix is polished: each point within ``polish_gate`` of a wall of the map is paired with
+the nearest such segment, and the pose that brings the points onto their walls' lines is found
+by Gauss–Newton, starting at the fix. With q = R(θ)p the point p turned into the map frame, a
+the segment's start and n its unit normal:
+
+    rᵢ = nᵢ·(qᵢ + t − aᵢ),    ∂rᵢ/∂(x, y, θ) = Jᵢ = [nᵢₓ, nᵢᵧ, nᵢ·(−qᵢᵧ, qᵢₓ)].
+
+A wall of the map is off the real one by the map's model error (``line_rho_floor``,
+``line_theta_floor``), the same for every point on it, so the points of one map line g are not
+independent: their residuals have the covariance
+
+    Σ_g = σ_g² W_g⁻¹ + U F Uᵀ,   U = [1, sᵢ − s̄],   F = diag(ρ_floor², θ_floor²),
+
+sᵢ the point's place along the line (s̄ their weighted mean), W_g the points' relative weights,
+σ_g² the weighted scatter of the residuals (at least ``point_sigma_floor``²). The normal equations
+sum Jᵀ Σ_g⁻¹ J over the lines; by the Woodbury identity, with a = Σ wᵢJᵢ, b = Σ wᵢJᵢ(sᵢ − s̄),
+
+    Jᵀ Σ_g⁻¹ J = (Jᵀ W J − m₀ a aᵀ − m₁ b bᵀ) / σ_g²,
+    m₀ = ρ_floor² / (σ_g² + ρ_floor² Σwᵢ),   m₁ = θ_floor² / (σ_g² + θ_floor² Σwᵢ(sᵢ − s̄)²),
+
+and likewise for Jᵀ Σ_g⁻¹ r. Without floors (an exact map) this is plain least squares. The step
+is taken only in the directions the fix observed (a corridor fix stays where it was along the
+corridor), and its covariance is (Bᵀ H B)⁻¹ in those directions, B their basis.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from houghloc.config import HoughConfig
+from houghloc.jit import njit
+from houghloc.segment_map import SegmentMap, check_grid_size
+
+MAX_STEPS = 5
+"""Gauss–Newton steps at most. The residuals are linear in the translation and nearly so in a
+small turn: from a fix, three or four steps converge (Intel: 90 % within five). Beyond, the
+pairings of points at the gate's edge flip back and forth, and what they move is below the
+laser's noise."""
+CONVERGED = 1e-4
+"""m (and rad): a step smaller than this (a tenth of a millimetre) ends the iterations."""
+MIN_CONDITION = 1e-12
+"""Smallest eigenvalue of BᵀHB over its largest below which the scan's points do not pin the pose
+in every direction the fix observed: the fix is left as it is."""
+
+
+@dataclass(frozen=True)
+class WallCells:
+    """For each square cell of side ``cell`` (one ``polish_gate``), the segments of the map's
+    kinds that come within that distance of some point of it: ``candidates[first[c]:first[c +
+    1]]`` for the cell c = row·width + column, rows along y from ``origin``."""
+
+    origin: NDArray[np.float64]
+    cell: float
+    width: int
+    height: int
+    first: NDArray[np.int64]
+    candidates: NDArray[np.int64]
+    starts: NDArray[np.float64]
+    ends: NDArray[np.float64]
+    normal: NDArray[np.float64]
+    """each segment's unit normal, its map line's: the same for every segment of a line"""
+    line: NDArray[np.int64]
+
+
+def build_wall_cells(map: SegmentMap, kinds: tuple[str, ...], gate: float) -> WallCells:
+    """Each segment is sampled every half cell; a point within ``gate`` of it is within
+    gate + cell/4 of a sample, hence at most two cells from the sample's cell in each axis, so
+    the 5 × 5 cells around every sample list it."""
+    segs = np.flatnonzero(np.isin(map.kinds, kinds))
+    starts, ends = map.starts[segs], map.ends[segs]
+    cell = float(gate)
+    reach = math.ceil((gate + 0.25 * cell) / cell)
+    if len(segs) == 0:
+        return WallCells(np.zeros(2), cell, 1, 1, np.zeros(2, np.int64), np.empty(0, np.int64),
+                         starts, ends, np.empty((0, 2)), np.empty(0, np.int64))
+    both = np.concatenate((starts, ends))
+    origin = both.min(axis=0) - (reach + 1) * cell
+    width, height = (np.ceil((both.max(axis=0) - origin) / cell).astype(int) + reach + 2)
+    check_grid_size((int(height), int(width)), cell, f"map {map.source}")
+    lengths = np.linalg.norm(ends - starts, axis=1)
+    count = np.ceil(lengths / (0.5 * cell)).astype(np.int64) + 1
+    sample_of = np.repeat(np.arange(len(segs)), count)
+    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    frac = k / np.maximum(count[sample_of] - 1, 1)
+    samples = starts[sample_of] + frac[:, None] * (ends - starts)[sample_of]
+    col = np.floor((samples[:, 0] - origin[0]) / cell).astype(np.int64)
+    row = np.floor((samples[:, 1] - origin[1]) / cell).astype(np.int64)
+    shifts = np.arange(-reach, reach + 1)
+    dr, dc = (v.ravel() for v in np.meshgrid(shifts, shifts, indexing="ij"))
+    cells = ((row[:, None] + dr) * width + (col[:, None] + dc)).ravel()
+    pairs = np.unique(cells * len(segs) + np.repeat(sample_of, len(dr)))
+    cell_of, seg_of = np.divmod(pairs, len(segs))
+    first = np.searchsorted(cell_of, np.arange(int(width) * int(height) + 1))
+    line = map.line_of_segment[segs]
+    alpha = map.line_alpha[line]
+    return WallCells(origin, cell, int(width), int(height), first.astype(np.int64),
+                     seg_of.astype(np.int64), np.ascontiguousarray(starts),
+                     np.ascontiguousarray(ends), np.column_stack((np.cos(alpha), np.sin(alpha))),
+                     line.astype(np.int64))
+
+
+def polish_pose(points: NDArray[np.float64], weights: NDArray[np.float64] | None,
+                cells: WallCells, pose: NDArray[np.float64], basis: NDArray[np.float64],
+                config: HoughConfig) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """The pose that brings ``points`` (robot frame; relative ``weights``, mean 1, or None for
+    equal ones) onto the map's walls, moved from ``pose`` only along the columns of ``basis``
+    (3×k, orthonormal), and the k×k covariance of that move (module docstring); None when the
+    points do not pin it (fewer than two map lines with ``min_piece_points`` points each, or
+    too weak a system)."""
+    polished, information, ok = _polish_kernel(*_kernel_args(points, weights, cells, pose,
+                                                             basis, config))
+    return (polished, np.linalg.inv(information)) if ok else None
+
+
+def polish_fix(points: NDArray[np.float64], weights: NDArray[np.float64] | None,
+               cells: WallCells, pose: NDArray[np.float64], cov: NDArray[np.float64],
+               observable: NDArray[np.float64], unobservable: NDArray[np.float64],
+               gate: float, unobserved_variance: float, config: HoughConfig
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
+    """A fix (``pose``, ``cov``, its ``observable`` and ``unobservable`` bases) polished: its
+    pose, 3×3 covariance (``unobserved_variance`` along the unobservable directions) and
+    information; None where :func:`polish_pose` finds nothing, or where the polished pose lies
+    beyond the χ² ``gate`` of the fix's own covariance (the points then disagree with the lines
+    that were matched, and the lines are kept). One compiled call."""
+    args = _kernel_args(points, weights, cells, pose, observable, config)
+    polished, new_cov, information, ok = _polish_fix_kernel(
+        args, np.ascontiguousarray(cov, dtype=float),
+        np.ascontiguousarray(unobservable, dtype=float), gate, unobserved_variance)
+    return (polished, new_cov, information) if ok else None
+
+
+def _kernel_args(points: NDArray, weights: NDArray | None, cells: WallCells, pose: NDArray,
+                 basis: NDArray, config: HoughConfig) -> tuple:
+    unit = weights is None
+    return (np.ascontiguousarray(points, dtype=float),
+            _ONE if unit else np.ascontiguousarray(weights, dtype=float), unit,
+            np.array(pose, dtype=float), np.ascontiguousarray(basis, dtype=float),
+            cells.origin[0], cells.origin[1], 1.0 / cells.cell, cells.width, cells.height,
+            cells.first, cells.candidates, cells.starts, cells.ends, cells.normal, cells.line,
+            float(config.polish_gate or 0.0), config.line_rho_floor**2,
+            config.line_theta_floor**2, config.point_sigma_floor**2, config.min_piece_points)
+
+
+_ONE = np.ones(1)
+
+
+@njit
+def _polish_fix_kernel(args: tuple, cov: NDArray, unobservable: NDArray, gate: float,
+                       unobserved_variance: float) -> tuple:
+    pose = args[3].copy()
+    basis = args[4]
+    polished, information, ok = _polish_kernel(*args)
+    if not ok:
+        return polished, cov, information, False
+    step = basis.T @ (polished - pose)  # θ unwrapped: the polish turns from the fix's
+    spread = basis.T @ cov @ basis
+    if step @ np.linalg.solve(spread, step) > gate:
+        return polished, cov, information, False
+    reduced_cov = np.linalg.inv(information)
+    new_cov = basis @ reduced_cov @ basis.T + unobserved_variance * (unobservable @ unobservable.T)
+    return polished, new_cov, basis @ information @ basis.T, True
+
+
+@njit
+def _pair(points: NDArray, pose: NDArray, ox: float, oy: float, inv_cell: float, width: int,
+          height: int, first: NDArray, candidates: NDArray, starts: NDArray, ends: NDArray,
+          gate: float, out: NDArray) -> None:
+    """Each point's nearest segment within ``gate`` at ``pose`` (−1: none), into ``out``."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    gate_sq = gate * gate
+    for i in range(points.shape[0]):
+        out[i] = -1
+        wx = pose[0] + c * points[i, 0] - s * points[i, 1]
+        wy = pose[1] + s * points[i, 0] + c * points[i, 1]
+        fx, fy = (wx - ox) * inv_cell, (wy - oy) * inv_cell
+        if not (0.0 <= fx < width and 0.0 <= fy < height):  # off the grid: no wall near
+            continue
+        cell = int(fy) * width + int(fx)
+        best = gate_sq
+        for k in range(first[cell], first[cell + 1]):
+            j = candidates[k]
+            ax, ay = starts[j, 0], starts[j, 1]
+            ex, ey = ends[j, 0] - ax, ends[j, 1] - ay
+            along = ((wx - ax) * ex + (wy - ay) * ey) / max(ex * ex + ey * ey, 1e-300)
+            along = min(max(along, 0.0), 1.0)
+            dx, dy = wx - ax - along * ex, wy - ay - along * ey
+            d_sq = dx * dx + dy * dy
+            if d_sq <= best:
+                best = d_sq
+                out[i] = j
+
+
+_SUMS = 21
+"""Per map line: Σw, Σws, Σws², Σwr, Σwr², Σwsr, Σw J (3), Σw J s (3), Σw J r (3), Σw JJᵀ (6)."""
+
+
+@njit
+def _normal_equations(points: NDArray, w: NDArray, unit: bool, pose: NDArray, paired: NDArray,
+                      starts: NDArray, normal: NDArray, line: NDArray, rho_floor_sq: float,
+                      theta_floor_sq: float, sigma_floor_sq: float, min_points: int,
+                      keys: NDArray, counts: NDArray, sums: NDArray) -> tuple:
+    """H = Σ_g Jᵀ Σ_g⁻¹ J and g = Σ_g Jᵀ Σ_g⁻¹ r over the map lines with ``min_points`` paired
+    points (module docstring), and how many lines there were: one pass over the points adds
+    each one's terms to its line's sums (a scan sees tens of lines: found by a linear search).
+    ``keys``, ``counts`` and ``sums`` are work space of a row per point."""
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    n_keys = 0
+    for i in range(points.shape[0]):
+        j = paired[i]
+        if j < 0:
+            continue
+        key = line[j]
+        u = 0
+        while u < n_keys and keys[u] != key:
+            u += 1
+        if u == n_keys:
+            keys[u] = key
+            counts[u] = 0
+            sums[u, :] = 0.0
+            n_keys += 1
+        counts[u] += 1
+        qx = c * points[i, 0] - s * points[i, 1]
+        qy = s * points[i, 0] + c * points[i, 1]
+        nx, ny = normal[j, 0], normal[j, 1]
+        rx, ry = pose[0] + qx - starts[j, 0], pose[1] + qy - starts[j, 1]
+        r = nx * rx + ny * ry
+        # the place along the map line, measured the same way on all its segments
+        along = -ny * (starts[j, 0] + rx) + nx * (starts[j, 1] + ry)
+        jac = (nx, ny, -qy * nx + qx * ny)
+        wi = 1.0 if unit else w[i]
+        row = sums[u]
+        row[0] += wi
+        row[1] += wi * along
+        row[2] += wi * along * along
+        row[3] += wi * r
+        row[4] += wi * r * r
+        row[5] += wi * along * r
+        col = 15
+        for k in range(3):
+            wj = wi * jac[k]
+            row[6 + k] += wj
+            row[9 + k] += wj * along
+            row[12 + k] += wj * r
+            for m in range(k, 3):
+                row[col] += wj * jac[m]
+                col += 1
+    H = np.zeros((3, 3))
+    g = np.zeros(3)
+    groups = 0
+    for u in range(n_keys):
+        if counts[u] >= min_points:
+            groups += 1
+            _add_line(sums[u], rho_floor_sq, theta_floor_sq, sigma_floor_sq, H, g)
+    return H, g, groups
+
+
+@njit
+def _add_line(row: NDArray, rho_floor_sq: float, theta_floor_sq: float, sigma_floor_sq: float,
+              H: NDArray, g: NDArray) -> None:
+    """One map line's Jᵀ Σ⁻¹ J and Jᵀ Σ⁻¹ r, added to H and g, from its sums (module
+    docstring: Woodbury; the sums centred on the points' mean place along the line)."""
+    total, sum_s, sum_ss, sum_r, sum_rr, sum_sr = row[0], row[1], row[2], row[3], row[4], row[5]
+    s_mean = sum_s / total
+    r_mean = sum_r / total
+    sigma_sq = max(sum_rr / total - r_mean * r_mean, sigma_floor_sq)
+    spread = max(sum_ss - total * s_mean * s_mean, 0.0)  # Σw(s − s̄)²
+    m0 = rho_floor_sq / (sigma_sq + rho_floor_sq * total)
+    m1 = theta_floor_sq / (sigma_sq + theta_floor_sq * spread)
+    b_r = sum_sr - s_mean * sum_r  # Σw(s − s̄)r
+    col = 15
+    for k in range(3):
+        a_k = row[6 + k]
+        b_k = row[9 + k] - s_mean * a_k  # Σ wJ(s − s̄)
+        g[k] += (row[12 + k] - m0 * a_k * sum_r - m1 * b_k * b_r) / sigma_sq
+        for m in range(k, 3):
+            a_m = row[6 + m]
+            b_m = row[9 + m] - s_mean * a_m
+            value = (row[col] - m0 * a_k * a_m - m1 * b_k * b_m) / sigma_sq
+            col += 1
+            H[k, m] += value
+            if m != k:
+                H[m, k] += value
+
+
+@njit
+def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis: NDArray,
+                   ox: float,
+                   oy: float, inv_cell: float, width: int, height: int, first: NDArray,
+                   candidates: NDArray, starts: NDArray, ends: NDArray, normal: NDArray,
+                   line: NDArray, gate: float, rho_floor_sq: float, theta_floor_sq: float,
+                   sigma_floor_sq: float, min_points: int) -> tuple:
+    """Gauss–Newton from ``pose`` in the span of ``basis``: (pose, BᵀHB at it, ok)."""
+    k = basis.shape[1]
+    reduced = np.zeros((k, k))
+    n = points.shape[0]
+    paired = np.empty(n, np.int64)
+    keys = np.empty(n, np.int64)
+    counts = np.empty(n, np.int64)
+    sums = np.empty((n, _SUMS))
+    for step in range(MAX_STEPS + 1):
+        _pair(points, pose, ox, oy, inv_cell, width, height, first, candidates, starts, ends,
+              gate, paired)
+        H, g, groups = _normal_equations(points, w, unit, pose, paired, starts, normal, line,
+                                         rho_floor_sq, theta_floor_sq, sigma_floor_sq,
+                                         min_points, keys, counts, sums)
+        reduced = basis.T @ H @ basis
+        if groups < 2:
+            return pose, reduced, False
+        eig = np.linalg.eigvalsh(reduced)
+        if not eig[0] > MIN_CONDITION * eig[-1]:
+            return pose, reduced, False
+        if step == MAX_STEPS:
+            break
+        move = basis @ np.linalg.solve(reduced, -(basis.T @ g))
+        pose += move
+        if np.abs(move).max() < CONVERGED:
+            break
+    return pose, reduced, True
