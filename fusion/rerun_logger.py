@@ -90,11 +90,11 @@ from fusion.rerun_view import (
     default_blueprint,
     entity_styles,
     heading_vector,
-    hough_pixels,
-    own_row,
+    hough_marks,
+    point_rows,
 )
 from fusion.status import ScanStatus
-from houghloc.geometry import compose, relative, transform_points, wrap_angle
+from houghloc.geometry import compose, relative, transform_points
 
 if TYPE_CHECKING:
     from fusion.localizer import Estimate
@@ -112,9 +112,16 @@ UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulat
 METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
            "sigma/theta", "matches", "error/position", "error/heading", "along_corridor")
 _DEGREES = np.array([1.0, 1.0, 180.0 / math.pi])
+_SCALE = _DEGREES.tolist()
 _METRIC_ENTITY = {name: f"metrics/{name}" for name in METRICS}
 _STATUS_RGBA = {status: np.array([rgba], dtype=np.uint8) for status, rgba in STATUS_COLOURS.items()}
 _UNMATCHED_RGBA = np.array([UNMATCHED], dtype=np.uint8)
+_NO_LINES = np.empty(0, np.int64)
+_NO_ANGLES = np.empty(0)
+
+
+def _floats(values: Any) -> NDArray[np.float64]:
+    return np.ascontiguousarray(values, dtype=float)
 
 
 # ------------------------------------------------------------------------------- the logger
@@ -176,14 +183,21 @@ class RerunLogger:
         self._styled: set[str] = set()
         self._batched_scans = 0
         self._accumulator_entities: dict[tuple[int, int], str] = {}
-        self._image_type: dict[str, type[np.unsignedinteger]] = {}  # each Hough image's pixels
+        # each Hough image's pixel type and its largest value
+        self._image_type: dict[str, tuple[type[np.unsignedinteger], int]] = {}
         self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
         self._colours = LineColours()
+        # compiled (or loaded from the cache) now, not on a scan of the stream
+        point_rows(np.zeros((1, 1), bool), _NO_LINES, _NO_LINES)
+        hough_marks(1.0, 1.0, 0.0, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_LINES,
+                    _NO_LINES)
         self._walls: tuple[NDArray[np.float64], NDArray[np.intp]] = (
             np.empty((0, 2, 2)), np.empty(0, np.intp))
         self._walls_of_line: list[NDArray[np.intp]] = []
+        # the last scan's matched map lines, their walls and the walls' colours
+        self._last_matched: tuple[frozenset[int], list, NDArray[np.uint8]] | None = None
         self._primary_sensor: str | None = None
         self._paths = {name: PathPieces(f"world/path/{name}") for name in PATH_COLOURS}
         self._odometry: NDArray[np.float64] | None = None
@@ -216,6 +230,7 @@ class RerunLogger:
         order = np.argsort(wall_lines, kind="stable")
         bounds = np.searchsorted(wall_lines[order], np.arange(n_lines + 1))
         self._walls_of_line = [order[bounds[j]:bounds[j + 1]] for j in range(n_lines)]
+        self._last_matched = None
         for entity, keep, radius, colour in (("world/map/walls", is_wall, 0.03, WALL_COLOUR),
                                              ("world/map/lines", ~is_wall, 0.02, PAINTED)):
             self.stream.log(entity, rr.LineStrips2D(
@@ -364,22 +379,18 @@ class RerunLogger:
         self._batch(entity, rr.Points2D, self._styles["points"]).add(
             t, index, len(pts), positions=transform_points(pose, pts), colors=colours)
 
-    def _point_rows(self, n: int, correction: Any) -> NDArray[np.intp]:
+    def _point_rows(self, n: int, correction: Any) -> NDArray[np.int64]:
         """Colour-table row of each point: its matched map line, else −2 on a line, else −1."""
-        rows = np.full(n, -1, dtype=np.intp)
         lines = getattr(correction, "lines", None)
         if lines is None or len(lines) == 0 or lines.members.shape[0] != n:
-            return rows
-        rows[lines.members.any(axis=1)] = -2
+            return np.full(n, -1, dtype=np.int64)
+        members = np.ascontiguousarray(lines.members)
         matches = correction.matches
-        map_lines = np.asarray(correction.matched_map_lines, dtype=np.intp)
+        map_lines = np.asarray(correction.matched_map_lines, dtype=np.int64)
         if matches is None or len(matches) == 0 or len(map_lines) != len(matches):
-            return rows
+            return point_rows(members, _NO_LINES, _NO_LINES)
         self._colours.ensure(map_lines)
-        mine = lines.members[:, matches.line]
-        owned = mine.any(axis=1)
-        rows[owned] = map_lines[mine.argmax(axis=1)[owned]]
-        return rows
+        return point_rows(members, np.asarray(matches.line, dtype=np.int64), map_lines)
 
     def _matched_walls(self, t: float, index: int, correction: ScanCorrection | None) -> None:
         """The walls of the map lines this scan's lines matched, each in its line's colour (the
@@ -390,15 +401,18 @@ class RerunLogger:
             self._batch("world/map/matched", rr.LineStrips2D).add(
                 t, index, 0, strips=[], colors=np.empty((0, 4), np.uint8))
             return
-        of_line, known = self._walls_of_line, len(self._walls_of_line)
-        # the walls in the map's order, as np.isin(line_of, matched) would pick them
-        lines = set(np.asarray(matched).tolist())
-        keep = np.sort(np.concatenate([of_line[j] for j in lines if j < known]
-                                      or [np.empty(0, np.intp)]))
-        self._colours.ensure(line_of[keep])
+        lines = frozenset(np.asarray(matched).tolist())
+        if self._last_matched is None or self._last_matched[0] != lines:
+            # consecutive scans mostly match the same lines: their walls are picked once
+            of_line, known = self._walls_of_line, len(self._walls_of_line)
+            # the walls in the map's order, as np.isin(line_of, matched) would pick them
+            keep = np.sort(np.concatenate([of_line[j] for j in lines if j < known]
+                                          or [np.empty(0, np.intp)]))
+            self._colours.ensure(line_of[keep])
+            self._last_matched = (lines, list(strips[keep]), self._colours.table[line_of[keep]])
+        _, walls, colours = self._last_matched
         self._batch("world/map/matched", rr.LineStrips2D).add(
-            t, index, len(keep), strips=list(strips[keep]),
-            colors=self._colours.table[line_of[keep]])
+            t, index, len(walls), strips=walls, colors=colours)
 
     def _robot(self, t: float, index: int, pose: NDArray[np.float64], cov: NDArray[np.float64],
                status: ScanStatus) -> None:
@@ -443,35 +457,33 @@ class RerunLogger:
         lines = getattr(correction, "lines", None)
         refs = getattr(correction, "references", None)
         matches = getattr(correction, "matches", None)
-        if grid is None or lines is None:
-            peaks = np.empty((0, 2))
+        ref_ids = _NO_LINES if refs is None or grid is None else np.asarray(refs.line, np.int64)
+        self._colours.ensure(ref_ids)
+        if grid is None:
+            peaks, ref_pixels, ends = np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2, 2))
+            match_line, match_ref = _NO_LINES, _NO_LINES
         else:
-            line_theta = own_row(grid, lines.theta)  # each peak's θ in its own row, once
-            peaks = hough_pixels(grid, line_theta, lines.rho, wrap=False)
+            line_theta, line_rho = ((_NO_ANGLES, _NO_ANGLES) if lines is None
+                                    else (_floats(lines.theta), _floats(lines.rho)))
+            ref_theta, ref_rho = ((_NO_ANGLES, _NO_ANGLES) if refs is None
+                                  else (_floats(refs.theta), _floats(refs.rho)))
+            match_line, match_ref = _NO_LINES, _NO_LINES
+            if matches is not None and len(matches) and len(line_theta) and len(ref_theta):
+                match_line = np.asarray(matches.line, np.int64)
+                match_ref = np.asarray(matches.ref, np.int64)
+            peaks, ref_pixels, ends = hough_marks(grid.theta_step, grid.rho_step, grid.rho_min,
+                                                  line_theta, line_rho, ref_theta, ref_rho,
+                                                  match_line, match_ref)
         peak_rows = np.full(len(peaks), -2, dtype=np.intp)
-        if refs is None or grid is None:
-            ref_ids, ref_pixels = np.empty(0, np.intp), np.empty((0, 2))
-        else:
-            ref_ids = np.asarray(refs.line, dtype=np.intp)
-            ref_pixels = hough_pixels(grid, refs.theta, refs.rho)
-            self._colours.ensure(ref_ids)
-        ends = np.empty((0, 2, 2))
-        if (len(peaks) and len(ref_ids) and matches is not None and len(matches)
-                and lines is not None and refs is not None):
-            peak_rows[matches.line] = ref_ids[matches.ref]
-            # the reference's θ taken nearest the peak's, so a pair across θ = 0 ≡ 2π is short
-            theta_line = line_theta[matches.line]
-            theta_ref = theta_line + wrap_angle(refs.theta[matches.ref] - theta_line)
-            ends = np.empty((len(matches), 2, 2))  # each peak to its reference, in pixels
-            ends[:, 0] = peaks[matches.line]
-            ends[:, 1] = hough_pixels(grid, theta_ref, refs.rho[matches.ref], wrap=False)
+        if len(ends):
+            peak_rows[match_line] = ref_ids[match_ref]
         table = self._colours.table
         self._batch("hough/peaks", rr.Points2D).add(
             t, index, len(peaks), positions=peaks, colors=table[peak_rows])
         self._batch("hough/references", rr.Points2D).add(
             t, index, len(ref_ids), positions=ref_pixels, colors=table[ref_ids],
             labels=self._colours.label(ref_ids))
-        match_colours = (table[peak_rows[matches.line]] if len(ends) and matches is not None
+        match_colours = (table[peak_rows[match_line]] if len(ends)
                          else np.empty((0, 4), np.uint8))
         self._batch("hough/matches", rr.LineStrips2D).add(
             t, index, len(ends), strips=list(ends), colors=match_colours)
@@ -483,22 +495,24 @@ class RerunLogger:
         if votes is None:
             return
         h, w = votes.shape
-        entity = self._accumulator_entities.setdefault(
-            (h, w), "hough/accumulator" if not self._accumulator_entities
-            else f"hough/accumulator/{h}x{w}")
+        entity = self._accumulator_entities.get((h, w))
+        if entity is None:
+            entity = self._accumulator_entities[(h, w)] = (
+                "hough/accumulator" if not self._accumulator_entities
+                else f"hough/accumulator/{h}x{w}")
         batch = self._batches.get(entity)
         if batch is None:  # the format and style once: building them costs more than the row
             # A cell gets at most one vote per point: 8 bits hold every vote of a sensor whose
             # first scan has at most 255 points (a 180-beam laser: half the bytes of 16 bits);
             # a later scan of more points is drawn saturated there. 16 bits otherwise.
-            self._image_type[entity] = np.uint8 if n_points <= 255 else np.uint16
+            dtype = np.uint8 if n_points <= 255 else np.uint16
+            self._image_type[entity] = (dtype, int(np.iinfo(dtype).max))
             batch = self._batch(entity, rr.DepthImage, rr.DepthImage.from_fields(
                 format=rr.components.ImageFormat(
                     width=w, height=h,
-                    channel_datatype="U8" if self._image_type[entity] is np.uint8 else "U16"),
+                    channel_datatype="U8" if dtype is np.uint8 else "U16"),
                 meter=1.0, colormap="viridis", draw_order=0.0))
-        dtype = self._image_type[entity]
-        top = int(np.iinfo(dtype).max)
+        dtype, top = self._image_type[entity]
         image = (votes if n_points <= top else np.minimum(votes, top)).astype(dtype)
         batch.add(t, index, 1, buffer=image.reshape(1, -1).view(np.uint8))
         if len(batch.t) >= IMAGE_BATCH:
@@ -517,9 +531,8 @@ class RerunLogger:
                                        strict=True):
                     self._scalar(name, t, index, value)
             self._scalar("nis", t, index, outcome.nis)
-        sigma = np.sqrt(np.maximum(np.diag(cov), 0.0)) * _DEGREES
-        for name, value in zip(METRICS[4:7], sigma.tolist(), strict=True):
-            self._scalar(name, t, index, value)
+        for k, name in enumerate(METRICS[4:7]):  # σ of x, y, θ
+            self._scalar(name, t, index, math.sqrt(max(float(cov[k, k]), 0.0)) * _SCALE[k])
         matches = getattr(correction, "matches", None)
         self._scalar("matches", t, index, len(matches) if matches is not None else 0)
         self._error_series.add_estimate(t, index, pose)

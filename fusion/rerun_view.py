@@ -14,6 +14,8 @@ import rerun.blueprint as rrb
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.status import ScanStatus
+from houghloc.geometry import TWO_PI
+from houghloc.jit import njit
 
 MAX_ELLIPSE_RADIUS = 20.0  # m; an unobserved direction would otherwise zoom the view out to nothing
 ARROW_LENGTH = 0.5  # m
@@ -107,6 +109,27 @@ class LineColours:
         return [str(self.names[i]) if i < known else f"line {i}" for i in ids.tolist()]
 
 
+@njit
+def point_rows(members: NDArray[np.bool_], matched_lines: NDArray[np.int64],
+               map_lines: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Each point's colour-table row: the map line of the first match (in ``matched_lines``,
+    the scan's line of each match, ``map_lines`` its map line) whose line holds the point
+    (``members``, points × lines), else −2 on a line, else −1. One pass, compiled: it runs on
+    every scan of a recording."""
+    rows = np.full(members.shape[0], -1, np.int64)
+    for i in range(members.shape[0]):
+        for m in range(matched_lines.shape[0]):
+            if members[i, matched_lines[m]]:
+                rows[i] = map_lines[m]
+                break
+        if rows[i] == -1:
+            for j in range(members.shape[1]):
+                if members[i, j]:
+                    rows[i] = -2
+                    break
+    return rows
+
+
 # ------------------------------------------------------------------------------- geometry
 def covariance_ellipse(xy: ArrayLike, cov_xy: NDArray[np.float64],
                        chi2: float = CHI2_95_2DOF) -> NDArray[np.float64]:
@@ -123,27 +146,35 @@ def covariance_ellipse(xy: ArrayLike, cov_xy: NDArray[np.float64],
     return (axes @ _UNIT_CIRCLE).T + np.asarray(xy, dtype=float)[:2]
 
 
-def hough_pixels(grid: Any, theta: ArrayLike, rho: ArrayLike,
-                 wrap: bool = True) -> NDArray[np.float64]:
-    """(θ, ρ) to accumulator pixel coordinates (u: ρ column, v: θ row).
-
-    ``wrap`` puts θ in its own cell's row (θ just below 2π is the top row, cell 0); without it
-    θ is used as given (an end of a segment may then lie just outside the image).
-    """
-    theta = own_row(grid, theta) if wrap else np.asarray(theta, dtype=float)
-    out = np.empty((len(theta), 2))  # filled in place: these are a few values, every scan
-    u, v = out[:, 0], out[:, 1]
-    np.subtract(rho, grid.rho_min, out=u)
-    u /= grid.rho_step
-    np.divide(theta, grid.theta_step, out=v)
-    v += 0.5
-    return out
-
-
-def own_row(grid: Any, theta: ArrayLike) -> NDArray[np.float64]:
-    """θ in [−δθ/2, 2π − δθ/2): θ cell i is centred on iδθ, so cell 0 straddles θ = 0."""
-    half = 0.5 * grid.theta_step
-    return (np.asarray(theta, dtype=float) + half) % (2.0 * np.pi) - half
+@njit
+def hough_marks(theta_step: float, rho_step: float, rho_min: float, line_theta: NDArray,
+                line_rho: NDArray, ref_theta: NDArray, ref_rho: NDArray, match_line: NDArray,
+                match_ref: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """A scan's marks on the accumulator image, in pixel coordinates (u = (ρ − ρ_min)/δρ, the
+    column; v = θ/δθ + ½, the row): its lines' peaks, the map's references, and a segment from
+    each match's peak to its reference (match k pairs line ``match_line[k]`` with reference
+    ``match_ref[k]``). θ is put in its own cell's row, [−δθ/2, 2π − δθ/2): cell i is centred on
+    iδθ, so cell 0 straddles θ = 0 and θ just below 2π is drawn in it. A segment's reference
+    end takes the θ nearest its peak's, so a pair across θ = 0 ≡ 2π is drawn short (its end
+    may then lie just outside the image). One compiled pass: it runs on every scan."""
+    half = 0.5 * theta_step
+    peaks = np.empty((line_theta.shape[0], 2))
+    for i in range(line_theta.shape[0]):
+        peaks[i, 0] = (line_rho[i] - rho_min) / rho_step
+        peaks[i, 1] = ((line_theta[i] + half) % (2.0 * np.pi) - half) / theta_step + 0.5
+    refs = np.empty((ref_theta.shape[0], 2))
+    for i in range(ref_theta.shape[0]):
+        refs[i, 0] = (ref_rho[i] - rho_min) / rho_step
+        refs[i, 1] = ((ref_theta[i] + half) % (2.0 * np.pi) - half) / theta_step + 0.5
+    ends = np.empty((match_line.shape[0], 2, 2))
+    for k in range(match_line.shape[0]):
+        line, ref = match_line[k], match_ref[k]
+        theta_line = (line_theta[line] + half) % (2.0 * np.pi) - half
+        theta_ref = theta_line + ((ref_theta[ref] - theta_line + np.pi) % TWO_PI - np.pi)
+        ends[k, 0, 0], ends[k, 0, 1] = peaks[line, 0], peaks[line, 1]
+        ends[k, 1, 0] = (ref_rho[ref] - rho_min) / rho_step
+        ends[k, 1, 1] = theta_ref / theta_step + 0.5
+    return peaks, refs, ends
 
 
 # ------------------------------------------------------------------------------- blueprint

@@ -161,13 +161,37 @@ def _polish_fix_kernel(args: tuple, cov: NDArray, unobservable: NDArray, gate: f
     polished, information, ok = _polish_kernel(*args)
     if not ok:
         return polished, cov, information, False
-    step = basis.T @ (polished - pose)  # θ unwrapped: the polish turns from the fix's
-    spread = basis.T @ cov @ basis
-    if step @ np.linalg.solve(spread, step) > gate:
+    k = basis.shape[1]
+    step = _project_vector(basis, polished - pose)  # θ unwrapped: the polish turns from the fix's
+    spread = np.empty((k, k))
+    _project(basis, cov, spread)
+    if not step @ _solve_spd(spread, step) <= gate:  # NaN too: a spread not positive definite
         return polished, cov, information, False
-    reduced_cov = np.linalg.inv(information)
-    new_cov = basis @ reduced_cov @ basis.T + unobserved_variance * (unobservable @ unobservable.T)
-    return polished, new_cov, basis @ information @ basis.T, True
+    reduced_cov = np.empty((k, k))
+    unit = np.zeros(k)
+    for j in range(k):  # (BᵀHB)⁻¹ column by column
+        unit[:] = 0.0
+        unit[j] = 1.0
+        reduced_cov[:, j] = _solve_spd(information, unit)
+    new_cov = _expand(basis, reduced_cov)
+    for i in range(3):
+        for j in range(3):
+            for c in range(unobservable.shape[1]):
+                new_cov[i, j] += unobserved_variance * unobservable[i, c] * unobservable[j, c]
+    return polished, new_cov, _expand(basis, information), True
+
+
+@njit
+def _expand(basis: NDArray, m: NDArray) -> NDArray:
+    """B m Bᵀ (3×3) of a k×k ``m``."""
+    k = basis.shape[1]
+    out = np.zeros((3, 3))
+    for i in range(3):
+        for j in range(3):
+            for a in range(k):
+                for b in range(k):
+                    out[i, j] += basis[i, a] * m[a, b] * basis[j, b]
+    return out
 
 
 @njit
@@ -207,11 +231,12 @@ _SUMS = 21
 def _normal_equations(points: NDArray, w: NDArray, unit: bool, pose: NDArray, paired: NDArray,
                       starts: NDArray, normal: NDArray, line: NDArray, rho_floor_sq: float,
                       theta_floor_sq: float, sigma_floor_sq: float, min_points: int,
-                      keys: NDArray, counts: NDArray, sums: NDArray) -> tuple:
+                      keys: NDArray, counts: NDArray, sums: NDArray, H: NDArray,
+                      g: NDArray) -> int:
     """H = Σ_g Jᵀ Σ_g⁻¹ J and g = Σ_g Jᵀ Σ_g⁻¹ r over the map lines with ``min_points`` paired
-    points (module docstring), and how many lines there were: one pass over the points adds
-    each one's terms to its line's sums (a scan sees tens of lines: found by a linear search).
-    ``keys``, ``counts`` and ``sums`` are work space of a row per point."""
+    points (module docstring), into ``H`` and ``g``; returns how many lines there were. One pass
+    over the points adds each one's terms to its line's sums (a scan sees tens of lines: found
+    by a linear search). ``keys``, ``counts`` and ``sums`` are work space of a row per point."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     n_keys = 0
     for i in range(points.shape[0]):
@@ -253,14 +278,14 @@ def _normal_equations(points: NDArray, w: NDArray, unit: bool, pose: NDArray, pa
             for m in range(k, 3):
                 row[col] += wj * jac[m]
                 col += 1
-    H = np.zeros((3, 3))
-    g = np.zeros(3)
+    H[:, :] = 0.0
+    g[:] = 0.0
     groups = 0
     for u in range(n_keys):
         if counts[u] >= min_points:
             groups += 1
             _add_line(sums[u], rho_floor_sq, theta_floor_sq, sigma_floor_sq, H, g)
-    return H, g, groups
+    return groups
 
 
 @njit
@@ -306,22 +331,103 @@ def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis
     keys = np.empty(n, np.int64)
     counts = np.empty(n, np.int64)
     sums = np.empty((n, _SUMS))
+    H = np.empty((3, 3))
+    g = np.empty(3)
     for step in range(MAX_STEPS + 1):
         _pair(points, pose, ox, oy, inv_cell, width, height, first, candidates, starts, ends,
               gate, paired)
-        H, g, groups = _normal_equations(points, w, unit, pose, paired, starts, normal, line,
-                                         rho_floor_sq, theta_floor_sq, sigma_floor_sq,
-                                         min_points, keys, counts, sums)
-        reduced = basis.T @ H @ basis
-        if groups < 2:
-            return pose, reduced, False
-        eig = np.linalg.eigvalsh(reduced)
-        if not eig[0] > MIN_CONDITION * eig[-1]:
+        groups = _normal_equations(points, w, unit, pose, paired, starts, normal, line,
+                                   rho_floor_sq, theta_floor_sq, sigma_floor_sq, min_points,
+                                   keys, counts, sums, H, g)
+        _project(basis, H, reduced)
+        if groups < 2 or not _well_conditioned(reduced):
             return pose, reduced, False
         if step == MAX_STEPS:
             break
-        move = basis @ np.linalg.solve(reduced, -(basis.T @ g))
-        pose += move
-        if np.abs(move).max() < CONVERGED:
+        # the step Δ = −B (BᵀHB)⁻¹ Bᵀg, the Gauss–Newton step confined to the span of B
+        converged = True
+        solution = _solve_spd(reduced, _project_vector(basis, g))
+        for i in range(3):
+            move = 0.0
+            for j in range(k):
+                move -= basis[i, j] * solution[j]
+            pose[i] += move
+            converged = converged and abs(move) < CONVERGED
+        if converged:
             break
     return pose, reduced, True
+
+
+@njit
+def _project(basis: NDArray, H: NDArray, out: NDArray) -> None:
+    """BᵀHB into ``out`` (k×k)."""
+    k = basis.shape[1]
+    for a in range(k):
+        for b in range(k):
+            total = 0.0
+            for i in range(3):
+                row = 0.0
+                for j in range(3):
+                    row += H[i, j] * basis[j, b]
+                total += basis[i, a] * row
+            out[a, b] = total
+
+
+@njit
+def _project_vector(basis: NDArray, g: NDArray) -> NDArray:
+    """Bᵀg."""
+    k = basis.shape[1]
+    out = np.zeros(k)
+    for a in range(k):
+        for i in range(3):
+            out[a] += basis[i, a] * g[i]
+    return out
+
+
+@njit
+def _well_conditioned(m: NDArray) -> bool:
+    """Smallest eigenvalue of the symmetric positive semi-definite ``m`` (2×2 or 3×3) over its
+    largest above ``MIN_CONDITION``. The usual case is decided without eigenvalues: λ_min/λ_max
+    ≥ det / λ_max^k ≥ det / trace^k, and det's rounding is a thousandth of the bound tested (a
+    margin of ten covers it). Otherwise LAPACK's eigenvalues decide."""
+    k = m.shape[0]
+    trace = 0.0
+    for i in range(k):
+        trace += m[i, i]
+    if k == 2:
+        det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    else:
+        det = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
+               - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
+               + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
+    if trace > 0.0 and det > 10.0 * MIN_CONDITION * trace**k:
+        return True
+    eig = np.linalg.eigvalsh(m)
+    return bool(eig[0] > MIN_CONDITION * eig[-1])
+
+
+@njit
+def _solve_spd(m: NDArray, rhs: NDArray) -> NDArray:
+    """x with m x = rhs, m symmetric positive definite (k ≤ 3): Cholesky, m = LLᵀ."""
+    k = m.shape[0]
+    low = np.zeros((k, k))
+    for j in range(k):
+        diagonal = m[j, j]
+        for c in range(j):
+            diagonal -= low[j, c] * low[j, c]
+        low[j, j] = math.sqrt(diagonal)
+        for i in range(j + 1, k):
+            value = m[i, j]
+            for c in range(j):
+                value -= low[i, c] * low[j, c]
+            low[i, j] = value / low[j, j]
+    x = rhs.copy()
+    for i in range(k):  # L y = rhs
+        for c in range(i):
+            x[i] -= low[i, c] * x[c]
+        x[i] /= low[i, i]
+    for i in range(k - 1, -1, -1):  # Lᵀ x = y
+        for c in range(i + 1, k):
+            x[i] -= low[c, i] * x[c]
+        x[i] /= low[i, i]
+    return x

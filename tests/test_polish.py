@@ -15,7 +15,14 @@ from fusion.sim import LaserConfig, laser_scan, random_free_pose
 from houghloc import HoughConfig, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, wrap_angle
 from houghloc.map_lookup import wall_cells
-from houghloc.polish import _pair, build_wall_cells, polish_pose
+from houghloc.polish import (
+    MIN_CONDITION,
+    _pair,
+    _solve_spd,
+    _well_conditioned,
+    build_wall_cells,
+    polish_pose,
+)
 from tests.conftest import MAPS
 
 EXACT = HoughConfig(line_rho_floor=0.0, line_theta_floor_deg=0.0)
@@ -166,3 +173,36 @@ def test_empty_and_degenerate_scans_stay_finite(robocup, gate) -> None:
     for points in (np.empty((0, 2)), np.zeros((30, 2)), np.full((30, 2), 1e12)):
         fix = localize_scan(points, robocup, (0.0, 0.0, 0.0), config)
         assert np.isfinite(fix.pose).all() and np.isfinite(fix.cov).all()
+
+
+def _spd(seed: int, k: int, condition_log10: float) -> np.ndarray:
+    """A random symmetric positive-definite k×k matrix of the given condition number."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(k, k)))
+    scale = 10.0 ** rng.uniform(-6, 6)
+    eigen = scale * np.logspace(0.0, -condition_log10, k)
+    return (q * eigen) @ q.T
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.sampled_from([2, 3]),
+       condition_log10=st.floats(0.0, 16.0))
+def test_the_closed_form_condition_test_agrees_with_lapack(seed, k, condition_log10) -> None:
+    """The step's test of λ_min / λ_max > MIN_CONDITION (closed-form eigenvalues) decides as
+    LAPACK's eigenvalues do, wherever the ratio is not within rounding of the threshold."""
+    m = _spd(seed, k, condition_log10)
+    eig = np.linalg.eigvalsh(m)
+    ratio = eig[0] / eig[-1]
+    if abs(math.log10(max(ratio, 1e-300)) - math.log10(MIN_CONDITION)) > 0.5:
+        assert _well_conditioned(m) == (ratio > MIN_CONDITION)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), k=st.sampled_from([2, 3]),
+       condition_log10=st.floats(0.0, 8.0))
+def test_the_cholesky_step_solves_the_normal_equations(seed, k, condition_log10) -> None:
+    m = _spd(seed, k, condition_log10)
+    rhs = np.random.default_rng(seed + 1).normal(size=k)
+    x = _solve_spd(m, rhs)
+    expected = np.linalg.solve(m, rhs)
+    assert np.allclose(x, expected, rtol=1e-12 * 10.0**condition_log10, atol=0.0)

@@ -28,7 +28,7 @@ from fusion.localizer import Estimate
 from fusion.rerun_columns import PATH_PIECE, PathPieces
 from fusion.rerun_logger import RerunLogger
 from fusion.rerun_serve import SERVE_HOST, free_port, web_viewer_command
-from fusion.rerun_view import covariance_ellipse, line_palette
+from fusion.rerun_view import covariance_ellipse, hough_marks, line_palette, point_rows
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ray_segment_distances
@@ -260,6 +260,50 @@ def test_without_a_sink_the_recording_stays_in_memory(robocup: SegmentMap, drive
     logger = RerunLogger()
     replay(logger, robocup, drive[:2])
     assert logger.memory is not None and logger.memory.num_msgs() > 0
+
+
+@settings(max_examples=200, deadline=None)
+@given(theta=st.lists(st.floats(0.0, 2 * math.pi, exclude_max=True), min_size=1, max_size=8),
+       rho=st.floats(-0.2, 20.0), step_deg=st.sampled_from([1.0, 3.0]))
+def test_hough_marks_fall_in_their_cells(theta: list[float], rho: float, step_deg: float) -> None:
+    """A peak or a reference is drawn in the accumulator cell of its (θ, ρ): row round(θ/δθ)
+    (cell 0 straddles θ = 0, so θ just below 2π is drawn in it), column (ρ − ρ_min)/δρ; and a
+    match between two θ across 0 ≡ 2π is drawn short, not across the whole image."""
+    step, rho_step, rho_min = math.radians(step_deg), 0.1, -0.2
+    n_rows = round(2 * math.pi / step)
+    angles = np.array(theta)
+    rhos = np.full(len(angles), rho)
+    across = np.array([0.3 * step, 2 * math.pi - 0.3 * step])  # one line, two sides of 0
+    peaks, refs, ends = hough_marks(step, rho_step, rho_min, np.concatenate((angles, across[:1])),
+                                    np.append(rhos, rho), np.concatenate((angles, across[1:])),
+                                    np.append(rhos, rho), np.array([len(angles)]),
+                                    np.array([len(angles)]))
+    cells = np.round(angles / step).astype(int) % n_rows
+    away = np.abs(angles / step - np.round(angles / step)) < 0.499  # not at a cell's edge
+    for drawn in (peaks[:-1], refs[:-1]):
+        assert np.array_equal(np.floor(drawn[away, 1]).astype(int), cells[away])
+        assert np.allclose(drawn[:, 0], (rho - rho_min) / rho_step)
+    assert np.floor(refs[-1, 1]) == 0  # θ just below 2π: the cell around θ = 0
+    assert np.allclose(ends[0, 0], peaks[-1])
+    assert abs(ends[0, 1, 1] - ends[0, 0, 1]) == pytest.approx(0.6, abs=1e-9)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n=st.integers(0, 40), n_lines=st.integers(1, 6))
+def test_each_point_takes_its_first_matched_lines_colour(seed: int, n: int, n_lines: int) -> None:
+    """Colour rows: the map line of the first match whose scan line holds the point, else −2
+    for a point on some line, else −1 (the law written with NumPy's masks)."""
+    rng = np.random.default_rng(seed)
+    members = rng.random((n, n_lines)) < 0.3
+    matched = rng.choice(n_lines, size=rng.integers(0, n_lines + 1), replace=False)
+    map_lines = rng.integers(0, 50, size=len(matched))
+    expected = np.where(members.any(axis=1), -2, -1)
+    if len(matched):
+        mine = members[:, matched]
+        owned = mine.any(axis=1)
+        expected[owned] = map_lines[mine.argmax(axis=1)[owned]]
+    assert np.array_equal(point_rows(members, matched.astype(np.int64),
+                                     map_lines.astype(np.int64)), expected)
 
 
 def test_covariance_ellipse_is_the_95_percent_contour() -> None:
