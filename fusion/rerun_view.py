@@ -157,24 +157,40 @@ def hough_marks(theta_step: float, rho_step: float, rho_min: float, line_theta: 
     iδθ, so cell 0 straddles θ = 0 and θ just below 2π is drawn in it. A segment's reference
     end takes the θ nearest its peak's, so a pair across θ = 0 ≡ 2π is drawn short (its end
     may then lie just outside the image). One compiled pass: it runs on every scan."""
-    half = 0.5 * theta_step
     peaks = np.empty((line_theta.shape[0], 2))
     for i in range(line_theta.shape[0]):
-        peaks[i, 0] = (line_rho[i] - rho_min) / rho_step
-        peaks[i, 1] = ((line_theta[i] + half) % (2.0 * np.pi) - half) / theta_step + 0.5
+        peaks[i, 0] = _column(line_rho[i], rho_step, rho_min)
+        peaks[i, 1] = _row(_own_row(line_theta[i], theta_step), theta_step)
     refs = np.empty((ref_theta.shape[0], 2))
     for i in range(ref_theta.shape[0]):
-        refs[i, 0] = (ref_rho[i] - rho_min) / rho_step
-        refs[i, 1] = ((ref_theta[i] + half) % (2.0 * np.pi) - half) / theta_step + 0.5
+        refs[i, 0] = _column(ref_rho[i], rho_step, rho_min)
+        refs[i, 1] = _row(_own_row(ref_theta[i], theta_step), theta_step)
     ends = np.empty((match_line.shape[0], 2, 2))
     for k in range(match_line.shape[0]):
         line, ref = match_line[k], match_ref[k]
-        theta_line = (line_theta[line] + half) % (2.0 * np.pi) - half
+        theta_line = _own_row(line_theta[line], theta_step)
         theta_ref = theta_line + ((ref_theta[ref] - theta_line + np.pi) % TWO_PI - np.pi)
         ends[k, 0, 0], ends[k, 0, 1] = peaks[line, 0], peaks[line, 1]
-        ends[k, 1, 0] = (ref_rho[ref] - rho_min) / rho_step
-        ends[k, 1, 1] = theta_ref / theta_step + 0.5
+        ends[k, 1, 0] = _column(ref_rho[ref], rho_step, rho_min)
+        ends[k, 1, 1] = _row(theta_ref, theta_step)
     return peaks, refs, ends
+
+
+@njit
+def _own_row(theta: float, theta_step: float) -> float:
+    """θ in [−δθ/2, 2π − δθ/2): θ cell i is centred on iδθ, so cell 0 straddles θ = 0."""
+    half = 0.5 * theta_step
+    return (theta + half) % TWO_PI - half
+
+
+@njit
+def _row(theta: float, theta_step: float) -> float:
+    return theta / theta_step + 0.5
+
+
+@njit
+def _column(rho: float, rho_step: float, rho_min: float) -> float:
+    return (rho - rho_min) / rho_step
 
 
 # ------------------------------------------------------------------------------- blueprint
