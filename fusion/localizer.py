@@ -26,6 +26,7 @@ from fusion.events import MAX_POSE_COORDINATE
 from fusion.hypotheses import HypothesisConfig
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
+from fusion.points_fix import PointsFix, PointsMeasurement
 from fusion.scan_odometry import ScanOdometry
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
 from fusion.status import ScanStatus, State
@@ -38,6 +39,11 @@ from houghloc.localize import clean_points
 
 log = logging.getLogger(__name__)
 LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them all
+_Use = tuple[ScanStatus, UpdateOutcome | None, CorridorMeasurement | None,
+             PointsMeasurement | None]
+"""what a tracking scan did to the filter: status, outcome, corridor placement, polished guess"""
+_POINTS_FIX_STATUSES = (ScanStatus.NO_FIX, ScanStatus.AMBIGUOUS, ScanStatus.MISFIT)
+"""the refusals of a fix after which the guess polished on the scan's points is offered"""
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +58,8 @@ class Estimate:
     outcome: UpdateOutcome | None = None
     along: CorridorMeasurement | None = None
     """the corridor fix placed along its corridor by the scan's points, when it was"""
+    by_points: PointsMeasurement | None = None
+    """the guess polished on the scan's points, offered where the lines' fix was refused"""
 
 
 @dataclass
@@ -64,6 +72,9 @@ class LocalizerStats:
     scans: int = 0
     partial_rank: int = 0
     placed_along: int = 0
+    points_fixes: int = 0
+    """scans whose refused fix was replaced by the guess polished on their points (offered to
+    the filter, whose counts say what it made of them)"""
     late: int = 0
     stray_timestamps: int = 0
     invalid_odometry: int = 0
@@ -135,6 +146,7 @@ class Localizer:
                                         make_tracker=self._tracker_at)
         self.corridor = CorridorPlacement(
             self.manager.fit, self.config.ambiguity.hypotheses or HypothesisConfig())
+        self.points_fix = PointsFix(map, self.manager.fit)
         # the map's look-ups for global matching, now rather than on the scan that first needs
         # them (the angle index and distance transform of a building take tens of ms)
         for kinds in {s.hough.reference_kinds for s in self.config.sensors.values()}:
@@ -290,7 +302,8 @@ class Localizer:
         self.stats.seconds["hough"] += t1 - t0
         kinds = cfg.hough.reference_kinds
         verdict = self.manager.judge(guess, fix, points, kinds, cfg.min_fix_lines)
-        status, outcome, along = self._use_fix(t, fix, verdict, guess_cov, points, cfg)
+        status, outcome, along, by_points = self._use_fix(t, fix, verdict, guess_cov, points,
+                                                          cfg)
         t2 = perf_counter()
         self.stats.seconds["update"] += t2 - t1
         decision = self.manager.re_search(t, status, verdict, guess, guess_cov, points, fix,
@@ -300,8 +313,9 @@ class Localizer:
                                            + perf_counter() - t2)
             if (decision.reset_pose is not None and decision.reset_cov is not None
                     and self.tracker.reset(decision.reset_pose, decision.reset_cov)):
-                status, outcome, along = ScanStatus.RE_SEARCHED, None, None
-        estimate = self._finish(t, status, fix, outcome, sensor, points, along=along)
+                status, outcome, along, by_points = ScanStatus.RE_SEARCHED, None, None, None
+        estimate = self._finish(t, status, fix, outcome, sensor, points, along=along,
+                                by_points=by_points)
         refs = fix.references
         # the manager gives tracking up here, when the scans stop giving usable fixes
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
@@ -331,15 +345,14 @@ class Localizer:
                                                + perf_counter() - t0)
 
     def _use_fix(self, t: float, fix: ScanCorrection, verdict: Verdict, guess_cov: NDArray,
-                 points: NDArray, cfg: SensorConfig
-                 ) -> tuple[ScanStatus, UpdateOutcome | None, CorridorMeasurement | None]:
+                 points: NDArray, cfg: SensorConfig) -> _Use:
         """Update the filter with a tracking fix when the manager's ``verdict`` says it can be
         trusted (a corridor fix placed along its corridor by the scan's points where they
-        can); the status, the filter's outcome (None when the fix was not offered) and the
-        placement along the corridor (None when there was none)."""
+        can), else with the guess polished on the scan's points where they pin it; the status,
+        the filter's outcome (None when nothing was offered), the placement along the corridor
+        and the polished guess (each None when there was none)."""
         if not verdict.use:
-            assert verdict.status is not None
-            return verdict.status, None, None
+            return self._use_points(t, fix, verdict, guess_cov, points, cfg)
         newest = self.tracker.time
         if newest is not None and t < newest:
             self.stats.late += 1
@@ -351,7 +364,28 @@ class Localizer:
             self.stats.placed_along += 1
         outcome = self.tracker.apply(t, pose, cov, basis)
         self.stats.partial_rank += fix.rank < 3
-        return ScanStatus(outcome.status), outcome, along
+        return ScanStatus(outcome.status), outcome, along, None
+
+    def _use_points(self, t: float, fix: ScanCorrection, verdict: Verdict, guess_cov: NDArray,
+                    points: NDArray, cfg: SensorConfig) -> _Use:
+        """Where the manager's ``verdict`` refused the lines' fix (no fix, ambiguous, misfit),
+        the guess polished on the scan's points updates the filter instead when they pin it
+        (:mod:`fusion.points_fix`): the verdict's status, the filter's outcome and the
+        measurement (None when none was offered)."""
+        assert verdict.status is not None
+        if verdict.status not in _POINTS_FIX_STATUSES:
+            return verdict.status, None, None, None
+        found = self.points_fix.measure(fix.guess, guess_cov, points, cfg.hough,
+                                        verdict.guess_fit)
+        if found is None:
+            return verdict.status, None, None, None
+        outcome = self.tracker.apply(t, found.pose, found.cov, None)
+        self.stats.points_fixes += 1
+        # the scan keeps the verdict's status: the manager still counts it as a scan without a
+        # usable fix. The points refine the pose near the guess; they cannot vouch that the
+        # guess is the right place, and a wrong pose polished onto nearby walls must still be
+        # given up.
+        return verdict.status, outcome, None, found
 
     def on_landmark(self, t: float, label: str, bearing: float) -> None:
         """A recognised landmark (e.g. a goal by its colour) at a bearing: while the map's
@@ -385,13 +419,14 @@ class Localizer:
     def _finish(self, t: float, status: ScanStatus, fix: ScanCorrection | None,
                 outcome: UpdateOutcome | None, sensor: str, points: NDArray,
                 leading: tuple[NDArray, NDArray] | None = None,
-                along: CorridorMeasurement | None = None) -> Estimate:
+                along: CorridorMeasurement | None = None,
+                by_points: PointsMeasurement | None = None) -> Estimate:
         """The estimate at ``t``: the filter's, or while several hypotheses are followed the
         ``leading`` one's (the likeliest pose; its status says it is not yet taken)."""
         self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
         at_t = leading if leading is not None else self.tracker.pose_at(t)
         pose, cov = at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
-        estimate = Estimate(t, pose, cov, status, fix, outcome, along)
+        estimate = Estimate(t, pose, cov, status, fix, outcome, along, by_points)
         self.logger.log_scan(t, self.stats.scans - 1, sensor, points, fix, estimate)
         return estimate
 

@@ -91,9 +91,9 @@ def warm_up() -> float:
     """Compile every kernel of the per-scan path, or load it from the cache, before the first
     scan: a synthetic scan of a synthetic room is turned into points, localized (its map models
     one wall by two pieces 15 cm apart, so a line fits two map lines and the second matching
-    pass runs), matched globally and scored; a view of a corridor is matched globally, which
-    only the slide along its walls can place. Once per process; returns the seconds it took
-    (0 when already done).
+    pass runs), its guess polished on its points, matched globally and scored; a view of a
+    corridor is matched globally, which only the slide along its walls can place. Once per
+    process; returns the seconds it took (0 when already done).
 
     A kernel is compiled the first time it is called with new argument types; the kernels'
     callers pass one layout (C-contiguous float64), so this one pass covers a whole run: no
@@ -110,8 +110,9 @@ def warm_up() -> float:
     from houghloc.geometry import positive_definite, ranges_to_points, ray_segment_distances
     from houghloc.global_match import global_match
     from houghloc.localize import localize_scan, observe_lines
-    from houghloc.map_lookup import wall_distance
+    from houghloc.map_lookup import wall_cells, wall_distance
     from houghloc.match_result import Neighbourhood
+    from houghloc.polish import polish_pose
     from houghloc.segment_map import SegmentMap
 
     started = time.perf_counter()
@@ -133,6 +134,9 @@ def warm_up() -> float:
     guess = pose + np.array([0.05, -0.05, 0.02])
     localize_scan(points, room, guess)  # the default prior: a read-only array
     localize_scan(points, room, guess, pose_cov=np.diag([0.04, 0.04, 0.003]))
+    config = HoughConfig()  # the guess polished on the points in every direction (a refused fix)
+    polish_pose(points, None, wall_cells(room, config.reference_kinds, config.polish_gate or 0.12),
+                guess, np.eye(3), config)
     lines = observe_lines(points, HoughConfig())[2]
     global_match(lines, points, room)
     global_match(lines, points, room, near=Neighbourhood(pose, 1.0, 0.3))

@@ -158,9 +158,10 @@ def check_latency(seed: int, duration: float) -> None:
                                                             delayed_updates=False))
 
     assert on_time.localizer.tracker.counts.delayed == 0
-    # Every late frame used goes through the history but the first, which arrives before any
-    # later odometry and is applied directly.
-    used = late.localizer.stats.accepted + late.localizer.stats.rejected
+    # Every late frame used (its fix, or its guess polished on its points) goes through the
+    # history but the first, which arrives before any later odometry and is applied directly.
+    stats = late.localizer.stats
+    used = stats.accepted + stats.rejected + stats.points_fixes
     assert used > 0 and late.localizer.tracker.counts.delayed == used - 1
     # Applied at its capture time, a late frame is worth what it was worth on time.
     assert late.position_rmse <= 1.10 * on_time.position_rmse
@@ -193,12 +194,15 @@ def check_gating(scenario: str, seed: int, duration: float) -> None:
     corrupted = localize(run, config, tracker)
 
     injected = len(tracker.injected_times)
-    fixes = corrupted.localizer.stats.accepted + corrupted.localizer.stats.rejected
+    stats = corrupted.localizer.stats
+    fixes = stats.accepted + stats.rejected + stats.points_fixes
     assert 0.03 * fixes <= injected <= 0.07 * fixes
     rejected_beyond_clean = tracker.counts.rejected - clean.localizer.tracker.counts.rejected
     # A 1 m jump is rejected unless it lies along a direction the fix does not observe.
     assert 0.9 * injected <= rejected_beyond_clean <= injected
-    assert corrupted.localizer.stats.rejected == tracker.counts.rejected
+    # every rejection is a scan's fix or a guess polished on a scan's points (which keeps the
+    # scan's own status)
+    assert stats.rejected <= tracker.counts.rejected <= stats.rejected + stats.points_fixes
     assert corrupted.lost == 0
     # The gate keeps the outliers out of the estimate: elsewhere it is the clean run's, less
     # the information of the fixes it refused. The filter averages fixes over several scans, so

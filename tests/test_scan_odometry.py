@@ -265,11 +265,13 @@ def slipping_run():
 
 
 def dead_reckoned(run, scan_odometry: bool):
-    """The localizer with no usable fix (every fix needs more lines than a scan has, and no
-    fit rule overrides that): what remains is its odometry, with or without the scans'
-    correction."""
+    """The localizer with no usable fix (every fix needs more lines than a scan has, no fit
+    rule overrides that, and no guess is polished on the points): what remains is its
+    odometry, with or without the scans' correction."""
     office = LocalizerConfig.from_yaml("fusion/configs/office-laser.yaml")
-    laser = office.sensors["laser"].model_copy(update={"min_fix_lines": 1000})
+    laser = office.sensors["laser"]
+    laser = laser.model_copy(update={
+        "min_fix_lines": 1000, "hough": laser.hough.model_copy(update={"polish_gate": None})})
     config = office.model_copy(update={
         "sensors": {"laser": laser},
         "ambiguity": office.ambiguity.model_copy(update={
