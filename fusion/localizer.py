@@ -375,8 +375,14 @@ class Localizer:
         assert verdict.status is not None
         if verdict.status not in _POINTS_FIX_STATUSES:
             return verdict.status, None, None, None
+        # a misfit's lines matched; it was refused for where it puts the scan against recent
+        # fits. Where it still puts more of the scan on walls than the guess does, the polish
+        # starts there (a guess far off in a fast turn pairs too few points to come back).
+        # A fix refused for its lines (too few, or fitting two places) is no place to start.
+        better = (verdict.status is ScanStatus.MISFIT and verdict.fix_fit is not None
+                  and verdict.guess_fit is not None and verdict.fix_fit > verdict.guess_fit)
         found = self.points_fix.measure(fix.guess, guess_cov, points, cfg.hough,
-                                        verdict.guess_fit)
+                                        verdict.guess_fit, fix.pose if better else None)
         if found is None:
             return verdict.status, None, None, None
         outcome = self.tracker.apply(t, found.pose, found.cov, None)

@@ -14,6 +14,11 @@ points sharing its model error) and offered to the filter as a full measurement,
 * the scan fits the walls at least as well there as at the guess (the share of its points on
   walls, the manager's measure of fit): a polish that slid the points off the walls is no fix.
 
+The polish starts at the guess, or at a misfit fix that puts more of the scan on walls than the
+guess does (its lines matched; it was refused for its fit against recent fixes, which a fast
+turn through clutter lowers for every pose): from a guess 20 cm and several degrees off, too few
+points lie within the gate to bring it back.
+
 No number of its own: the thresholds are the Hough settings' and the manager's measure.
 """
 
@@ -57,15 +62,18 @@ class PointsFix:
     fit: ScanFit
 
     def measure(self, guess: NDArray, guess_cov: NDArray, points: NDArray, hough: HoughConfig,
-                guess_fit: float | None = None) -> PointsMeasurement | None:
-        """The measurement the scan's ``points`` (robot frame) give from ``guess`` (covariance
+                guess_fit: float | None = None, start: NDArray | None = None
+                ) -> PointsMeasurement | None:
+        """The measurement the scan's ``points`` (robot frame) give near ``guess`` (covariance
         ``guess_cov``), or None where they do not give one (module docstring). ``guess_fit``:
-        the share of the points on walls at the guess, when the caller knows it."""
+        the share of the points on walls at the guess, when the caller knows it. ``start``:
+        where the polish starts (default the guess); the gates are the guess's still."""
         if hough.polish_gate is None or len(points) == 0:
             return None
         cells = wall_cells(self.map, hough.reference_kinds, hough.polish_gate)
         weights = None if hough.range_sigma_growth <= 0 else point_weights(points, hough)
-        found = polish_pose(points, weights, cells, guess, _ALL_DIRECTIONS, hough)
+        found = polish_pose(points, weights, cells, guess if start is None else start,
+                            _ALL_DIRECTIONS, hough)
         if found is None:
             return None
         pose, cov = found

@@ -57,7 +57,7 @@ def test_a_signal_mid_run_leaves_valid_outputs_and_exits_128_plus_its_number(
     proc = subprocess.Popen([str(BIN / "houghloc"), *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 180  # a cold start compiles the kernels first
     while not ((out / "trajectory.tum").exists()
                and (out / "trajectory.tum").stat().st_size > 2000):
         assert proc.poll() is None, proc.communicate()

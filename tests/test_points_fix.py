@@ -74,3 +74,19 @@ def test_without_a_polish_gate_nothing_is_measured() -> None:
     points = scan_points(ROOM, TRUTH)
     off = HOUGH.model_copy(update={"polish_gate": None})
     assert points_fix(ROOM).measure(TRUTH, GUESS_COV, points, off) is None
+
+
+def test_a_polish_started_elsewhere_is_still_judged_against_the_guess() -> None:
+    """Started near the truth (a misfit fix that fits better than the guess), the polish lands
+    on the truth; the move from the guess, 32 cm and 6°, is offered only when the guess's own
+    uncertainty allows it."""
+    guess = TRUTH + np.array([0.25, -0.2, math.radians(6.0)])
+    start = TRUTH + np.array([0.03, 0.02, math.radians(0.5)])
+    points = scan_points(ROOM, TRUTH)
+    wide = np.diag([0.3**2, 0.3**2, math.radians(10.0) ** 2])
+    found = points_fix(ROOM).measure(guess, wide, points, HOUGH, start=start)
+    assert found is not None
+    assert np.hypot(*(found.pose[:2] - TRUTH[:2])) < 0.005
+    assert found.fit == 1.0 > found.guess_fit
+    tight = np.diag([0.02**2, 0.02**2, math.radians(1.0) ** 2])
+    assert points_fix(ROOM).measure(guess, tight, points, HOUGH, start=start) is None
