@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from houghloc.config import HoughConfig
-from houghloc.geometry import inverse_3x3
+from houghloc.geometry import inverse_3x3, inverse_small
 from houghloc.jit import njit
 from houghloc.matching import (
     Matches,
@@ -122,33 +122,57 @@ def _displacement(matches: Matches, beta: NDArray, max_observable_sigma: float, 
                   info: NDArray, b: NDArray, full: bool, delta: NDArray, cov: NDArray,
                   chi2_total: float) -> Displacement:
     """The displacement from :func:`_solve`'s sums and, when the whole pose is observable, its
-    solution; otherwise the solution confined to the observable directions."""
+    solution; otherwise the solution confined to the observable directions
+    (:func:`_partial_solution`)."""
     if full:  # the usual case: the whole pose is observed
         return Displacement(delta, cov, info, 3, _FULL, _NONE, chi2_total,
                             max(2 * len(matches) - 3, 0), matches, beta)
-    # Observable translation directions: eigenvectors of the Schur complement
-    # Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out), a symmetric 2×2 solved in closed form.
-    l_xx, l_xy, l_yy, l_xt, l_yt, l_tt = terms[:6].tolist()
-    a, bb, d = l_xx - l_xt * l_xt / l_tt, l_xy - l_xt * l_yt / l_tt, l_yy - l_yt * l_yt / l_tt
-    half_gap = math.hypot(0.5 * (a - d), bb)
-    lam = (0.5 * (a + d) - half_gap, 0.5 * (a + d) + half_gap)
-    phi = 0.5 * math.atan2(2.0 * bb, a - d)  # direction of the larger eigenvalue
-    dirs = ((-math.sin(phi), math.cos(phi)), (math.cos(phi), math.sin(phi)))
-    basis = [(0.0, 0.0, 1.0)]
-    blind: list[tuple[float, float, float]] = []
-    for lam_k, (vx, vy) in zip(lam, dirs, strict=True):
-        (basis if lam_k > 1.0 / max_observable_sigma**2 else blind).append((vx, vy, 0.0))
-    u = np.array(basis).T
-    v = np.array(blind).T
-    cov_u = np.linalg.inv(u.T @ info @ u)
-    delta = u @ (cov_u @ (u.T @ b))
-    cov = u @ cov_u @ u.T + UNOBSERVED_VARIANCE * (v @ v.T)
-    cov = 0.5 * (cov + cov.T)
-    # post-fit χ² = min over Δ of Σ (r − JΔ)ᵀ W (r − JΔ) = rᵀWr − bᵀΔ (normal equations)
-    chi2_total = max(float(terms[9] - b @ delta), 0.0)
+    u, v, delta, cov, chi2_total = _partial_solution(terms, info, b, max_observable_sigma,
+                                                     UNOBSERVED_VARIANCE)
     rank = u.shape[1]
     return Displacement(delta, cov, info, rank, u, v, chi2_total,
                         max(2 * len(matches) - rank, 0), matches, beta)
+
+
+@njit
+def _partial_solution(terms: NDArray, info: NDArray, b: NDArray, max_observable_sigma: float,
+                      unobserved_variance: float) -> tuple:
+    """The solution confined to the observable directions, when the whole pose is not.
+
+    Observable translation directions: eigenvectors of the Schur complement
+    Λ_tt − Λ_tθ Λ_θθ⁻¹ Λ_θt (θ marginalised out), a symmetric 2×2 solved in closed form; θ is
+    always observed. With U those directions (3×k) and V the others: Δ = U (UᵀΛU)⁻¹ Uᵀb,
+    C = U (UᵀΛU)⁻¹ Uᵀ + ``unobserved_variance`` V Vᵀ. Returns U, V, Δ, C and the post-fit χ²."""
+    l_xx, l_xy, l_yy, l_xt, l_yt, l_tt = terms[0], terms[1], terms[2], terms[3], terms[4], terms[5]
+    a, bb, d = l_xx - l_xt * l_xt / l_tt, l_xy - l_xt * l_yt / l_tt, l_yy - l_yt * l_yt / l_tt
+    half_gap = math.hypot(0.5 * (a - d), bb)
+    phi = 0.5 * math.atan2(2.0 * bb, a - d)  # direction of the larger eigenvalue
+    lam = (0.5 * (a + d) - half_gap, 0.5 * (a + d) + half_gap)
+    dirs = ((-math.sin(phi), math.cos(phi)), (math.cos(phi), math.sin(phi)))
+    seen = np.zeros(2, np.bool_)
+    k = 1
+    for m in range(2):
+        seen[m] = lam[m] > 1.0 / max_observable_sigma**2
+        k += seen[m]
+    u = np.zeros((3, k))
+    v = np.zeros((3, 3 - k))
+    u[2, 0] = 1.0
+    iu, iv = 1, 0
+    for m in range(2):
+        if seen[m]:
+            u[0, iu], u[1, iu] = dirs[m]
+            iu += 1
+        else:
+            v[0, iv], v[1, iv] = dirs[m]
+            iv += 1
+    reduced = u.T @ info @ u
+    cov_u = inverse_small(reduced)
+    delta = u @ (cov_u @ (u.T @ b))
+    cov = u @ cov_u @ u.T + unobserved_variance * (v @ v.T)
+    cov = 0.5 * (cov + cov.T)
+    # post-fit χ² = min over Δ of Σ (r − JΔ)ᵀ W (r − JΔ) = rᵀWr − bᵀΔ (normal equations)
+    chi2 = terms[9] - (b[0] * delta[0] + b[1] * delta[1] + b[2] * delta[2])
+    return u, v, delta, cov, max(chi2, 0.0)
 
 
 @njit

@@ -178,6 +178,26 @@ def inverse_3x3(m: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
+@njit
+def inverse_small(m: NDArray) -> NDArray:
+    """Inverse of a 1×1, 2×2 or 3×3 matrix in closed form (``LinAlgError`` when singular)."""
+    k = m.shape[0]
+    if k == 3:
+        return inverse_3x3(m)
+    out = np.empty((k, k))
+    if k == 1:
+        if m[0, 0] == 0.0 or not math.isfinite(m[0, 0]):
+            raise np.linalg.LinAlgError("singular or non-finite 1×1 matrix")
+        out[0, 0] = 1.0 / m[0, 0]
+        return out
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    if det == 0.0 or not math.isfinite(det):
+        raise np.linalg.LinAlgError("singular or non-finite 2×2 matrix")
+    out[0, 0], out[0, 1] = m[1, 1] / det, -m[0, 1] / det
+    out[1, 0], out[1, 1] = -m[1, 0] / det, m[0, 0] / det
+    return out
+
+
 def ray_segment_distances(
     origin: ArrayLike, dirs: NDArray[np.float64], starts: NDArray[np.float64],
     ends: NDArray[np.float64],

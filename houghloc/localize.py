@@ -23,7 +23,7 @@ from houghloc.displacement import (
     estimate_displacement,
     match_and_solve,
 )
-from houghloc.geometry import TWO_PI, inverse_3x3, wrap_scalar
+from houghloc.geometry import TWO_PI, inverse_3x3, inverse_small, wrap_scalar
 from houghloc.jit import njit
 from houghloc.map_lookup import wall_cells
 from houghloc.matching import Matches, gate_threshold, reassociate
@@ -258,13 +258,13 @@ def localize_scan(
         doubts.append(f"matched lines disagree (χ² {disp.chi2:.1f} on {disp.dof} dof)")
     # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
     # directions, against the χ² gate (a filter will run the same test on its innovation).
-    step = wrapped = _wrapped(offset)
+    wrapped = _wrapped(offset)
     if disp.rank == 3:
         spread = inverse_3x3(prior + disp.cov)
+        distance = wrapped @ spread @ wrapped
     else:
-        step = disp.observable.T @ step
-        spread = np.linalg.inv(disp.observable.T @ (prior + disp.cov) @ disp.observable)
-    if step @ spread @ step > gate_threshold(config.gate_probability, disp.rank):
+        distance = _observed_distance(wrapped, prior + disp.cov, disp.observable)
+    if distance > gate_threshold(config.gate_probability, disp.rank):
         doubts.append("correction far outside the guess's uncertainty")
     rank_note = [] if disp.rank == 3 else [
         f"rank {disp.rank}: unobservable along "
@@ -281,6 +281,15 @@ def localize_scan(
         disp.unobservable, matches, ambiguous, "; ".join(rank_note + doubts + notes),
         matched_map_lines=refs.line[matches.ref],
         references=refs, **{k: v for k, v in stages.items() if k != "references"})
+
+
+@njit
+def _observed_distance(step: NDArray, cov: NDArray, basis: NDArray) -> float:
+    """(Bᵀs)ᵀ (BᵀCB)⁻¹ (Bᵀs): the squared Mahalanobis length of ``step`` in the directions of
+    ``basis`` B (3×k) under ``cov`` C."""
+    reduced = np.ascontiguousarray(basis.T) @ cov @ basis
+    seen = np.ascontiguousarray(basis.T) @ step
+    return float(seen @ (inverse_small(reduced) @ seen))
 
 
 def _checked_guess(guess: ArrayLike) -> NDArray[np.float64]:

@@ -19,8 +19,14 @@ from fusion.sim import (
     random_free_pose,
 )
 from houghloc import HoughConfig, SegmentMap, localize_scan, observe_lines
-from houghloc.displacement import estimate_displacement, match_and_solve
-from houghloc.geometry import ranges_to_points, wrap_angle
+from houghloc.displacement import (
+    UNOBSERVED_VARIANCE,
+    _partial_solution,
+    _solve,
+    estimate_displacement,
+    match_and_solve,
+)
+from houghloc.geometry import inverse_small, ranges_to_points, wrap_angle
 from houghloc.matching import associate, reassociate
 from tests.conftest import MAPS, REPO
 
@@ -273,6 +279,57 @@ def test_one_call_association_and_solution_equal_the_two_steps(robocup, x, y, th
     for name in ("delta", "cov", "information", "observable", "unobservable"):
         np.testing.assert_array_equal(getattr(disp, name), getattr(alone, name))
     assert (disp.rank, disp.chi2, disp.dof) == (alone.rank, alone.chi2, alone.dof)
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**16), n_lines=st.integers(1, 6),
+       spread_deg=st.sampled_from([0.0, 0.5, 5.0, 60.0]))
+def test_a_partial_solution_is_confined_to_the_observable_directions(seed, n_lines,
+                                                                     spread_deg) -> None:
+    """Lines of (nearly) one direction — a corridor — observe θ and the translation across
+    them: Δ = U (UᵀΛU)⁻¹ Uᵀb and C = U (UᵀΛU)⁻¹ Uᵀ + σ²_unobserved V Vᵀ, U the directions
+    whose σ (θ marginalised out) is below ``max_observable_sigma`` and V the others."""
+    rng = np.random.default_rng(seed)
+    beta = rng.uniform(-math.pi, math.pi) + np.radians(spread_deg) * rng.uniform(-1, 1, n_lines)
+    cov = np.zeros((n_lines, 2, 2))
+    cov[:, 0, 0] = rng.uniform(1e-6, 1e-3, n_lines)
+    cov[:, 1, 1] = rng.uniform(1e-5, 1e-2, n_lines)
+    cov[:, 0, 1] = cov[:, 1, 0] = 0.5 * np.sqrt(cov[:, 0, 0] * cov[:, 1, 1]) * rng.uniform(
+        -1, 1, n_lines)
+    residual = rng.normal(0.0, 0.05, (n_lines, 2))
+    terms, info, b, full, *_ = _solve(cov, residual, beta, 0.5)
+    assume(not full)
+    u, v, delta, out_cov, chi2 = _partial_solution(terms, info, b, 0.5, UNOBSERVED_VARIANCE)
+    assert u.shape[1] + v.shape[1] == 3 and u.shape[1] >= 1
+    np.testing.assert_allclose(np.column_stack((u, v)).T @ np.column_stack((u, v)), np.eye(3),
+                               atol=1e-12)
+    # the translation's information with θ marginalised out, along each kept direction
+    schur = info[:2, :2] - np.outer(info[:2, 2], info[2, :2]) / info[2, 2]
+    for column in u[:2, 1:].T:
+        assert column @ schur @ column > 1.0 / 0.5**2
+    for column in v[:2].T:
+        assert column @ schur @ column <= 1.0 / 0.5**2 * (1 + 1e-9)
+    cov_u = np.linalg.inv(u.T @ info @ u)
+    np.testing.assert_allclose(delta, u @ cov_u @ u.T @ b, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(out_cov, u @ cov_u @ u.T + UNOBSERVED_VARIANCE * v @ v.T,
+                               rtol=1e-9, atol=1e-9)
+    assert np.allclose(v.T @ delta, 0.0, atol=1e-12)  # nothing invented along the blind ones
+    assert chi2 == pytest.approx(max(terms[9] - b @ delta, 0.0), rel=1e-9, abs=1e-12)
+
+
+@settings(max_examples=100, deadline=None)
+@given(m=st.lists(st.floats(-10, 10), min_size=9, max_size=9), k=st.integers(1, 3))
+def test_small_inverses_are_inverses(m, k) -> None:
+    """`inverse_small` of a k×k matrix times the matrix is the identity; a singular one raises
+    `LinAlgError`, as `np.linalg.inv` does."""
+    a = np.array(m).reshape(3, 3)[:k, :k].copy()
+    if abs(np.linalg.det(a)) < 1e-6 * max(1.0, np.abs(a).max()) ** k:
+        singular = a.copy()
+        singular[-1] = 0.0
+        with pytest.raises(np.linalg.LinAlgError):
+            inverse_small(singular)
+        return
+    np.testing.assert_allclose(inverse_small(a) @ a, np.eye(k), atol=1e-6)
 
 
 @settings(max_examples=100, deadline=None)
