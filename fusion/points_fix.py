@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from fusion.ambiguity.fit import ScanFit
 from houghloc import HoughConfig
 from houghloc.geometry import inverse_3x3, wrap_scalar
-from houghloc.localize import point_weights
+from houghloc.localize import polish_weights
 from houghloc.map_lookup import wall_cells
 from houghloc.matching import gate_threshold
 from houghloc.polish import polish_pose
@@ -71,9 +71,8 @@ class PointsFix:
         if hough.polish_gate is None or len(points) == 0:
             return None
         cells = wall_cells(self.map, hough.reference_kinds, hough.polish_gate)
-        weights = None if hough.range_sigma_growth <= 0 else point_weights(points, hough)
-        found = polish_pose(points, weights, cells, guess if start is None else start,
-                            _ALL_DIRECTIONS, hough)
+        found = polish_pose(points, polish_weights(points, hough), cells,
+                            guess if start is None else start, _ALL_DIRECTIONS, hough)
         if found is None:
             return None
         pose, cov = found

@@ -149,6 +149,13 @@ def point_weights(points: NDArray[np.float64], config: HoughConfig) -> NDArray[n
     return weights * (len(weights) / weights.sum())
 
 
+def polish_weights(points: NDArray[np.float64], config: HoughConfig
+                   ) -> NDArray[np.float64] | None:
+    """The points' weights for :mod:`houghloc.polish`: None (equal weights, its fast path) for a
+    laser, :func:`point_weights` for a sensor whose noise grows with range."""
+    return None if config.range_sigma_growth <= 0 else point_weights(points, config)
+
+
 @njit
 def _observe_kernel(points: NDArray, weights: NDArray, unit: bool, half_trig32: NDArray,
                     signed_cells: int, margin_cells: int, n_rho: int, cell_theta: float,
@@ -287,8 +294,9 @@ def localize_scan(
 def _observed_distance(step: NDArray, cov: NDArray, basis: NDArray) -> float:
     """(Bᵀs)ᵀ (BᵀCB)⁻¹ (Bᵀs): the squared Mahalanobis length of ``step`` in the directions of
     ``basis`` B (3×k) under ``cov`` C."""
-    reduced = np.ascontiguousarray(basis.T) @ cov @ basis
-    seen = np.ascontiguousarray(basis.T) @ step
+    transposed = np.ascontiguousarray(basis.T)
+    reduced = transposed @ cov @ basis
+    seen = transposed @ step
     return float(seen @ (inverse_small(reduced) @ seen))
 
 
@@ -310,10 +318,10 @@ def _polished(points: NDArray, map: SegmentMap, pose: NDArray, disp: Displacemen
     if config.polish_gate is None or disp.rank < 2:
         return None
     cells = wall_cells(map, config.reference_kinds, config.polish_gate)
-    weights = None if config.range_sigma_growth <= 0 else point_weights(points, config)
-    found = polish_fix(points, weights, cells, pose, disp.cov, disp.observable,
-                       disp.unobservable, gate_threshold(config.gate_probability, disp.rank),
-                       UNOBSERVED_VARIANCE, config)
+    found = polish_fix(points, polish_weights(points, config), cells, pose, disp.cov,
+                       disp.observable, disp.unobservable,
+                       gate_threshold(config.gate_probability, disp.rank), UNOBSERVED_VARIANCE,
+                       config)
     if found is None:
         return None
     polished, cov, information = found
