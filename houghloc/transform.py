@@ -92,23 +92,24 @@ def _vote_kernel(points: NDArray[np.float64], half_trig32: NDArray[np.float32], 
                  acc: NDArray[np.int32]) -> None:
     half, n_rho, n = half_trig32.shape[1], acc.shape[1], points.shape[0]
     shift, top = np.float32(u + 1), np.float32(2 * u + 1)  # signed cell c − (u + 1) holds ρ/δρ
-    xs, ys = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
-    # unsigned cells and fixed views into the signed row: indices the compiler knows are not
-    # negative need no wrap-around check, and the copies below vectorise
-    cells = np.empty(n, np.uint32)
-    signed = np.empty(2 * u + 2, np.int32)  # one signed row, a guard cell at each end
+    cos_, sin_ = half_trig32[0].copy(), half_trig32[1].copy()
+    # point by point, all rows at once: consecutive points of a wall fall in the same cell of a
+    # row, and counting them one after the other would wait on each increment; across rows the
+    # increments are independent. Unsigned cells need no wrap-around check.
+    signed = np.zeros((half, 2 * u + 2), np.int32)  # signed rows, a guard cell at each end
+    cells = np.empty(half, np.uint32)
+    for k in range(n):
+        x, y = np.float32(points[k, 0]), np.float32(points[k, 1])
+        for i in range(half):  # the cells first (vectorised), then the counts
+            q = fma(y, sin_[i], x * cos_[i]) + shift
+            cells[i] = np.uint32(min(max(q, np.float32(0.0)), top))
+        for i in range(half):
+            signed[i, cells[i]] += 1
     # cell j of row θ holds ρ ∈ [(j − m)δ, (j − m + 1)δ): the signed cell j − m; in row θ + π
     # the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard
-    forward = signed[u + 1 - m: u + 1 - m + n_rho]
-    backward = signed[u + m + 1 - n_rho: u + m + 1]  # read from its end
     for i in range(half):
-        c, s = half_trig32[0, i], half_trig32[1, i]
-        for k in range(n):  # the cells first (vectorised), then the counts
-            q = fma(ys[k], s, xs[k] * c) + shift
-            cells[k] = np.uint32(min(max(q, np.float32(0.0)), top))
-        signed[:] = 0
-        for k in range(n):
-            signed[cells[k]] += 1
+        forward = signed[i, u + 1 - m: u + 1 - m + n_rho]
+        backward = signed[i, u + m + 1 - n_rho: u + m + 1]  # read from its end
         row = acc[i]  # two loops, not one: each is then a vectorised copy
         for j in range(n_rho):
             row[j] = forward[j]
