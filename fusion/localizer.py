@@ -76,6 +76,8 @@ class LocalizerStats:
     """scans whose refused fix was replaced by the guess polished on their points (offered to
     the filter, whose counts say what it made of them)"""
     late: int = 0
+    """measurements (fixes and polished guesses) offered to the filter for a time before its
+    newest reading: applied at their own time, the odometry since re-propagated"""
     stray_timestamps: int = 0
     invalid_odometry: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
@@ -353,16 +355,13 @@ class Localizer:
         and the polished guess (each None when there was none)."""
         if not verdict.use:
             return self._use_points(t, fix, verdict, guess_cov, points, cfg)
-        newest = self.tracker.time
-        if newest is not None and t < newest:
-            self.stats.late += 1
         pose, cov = fix.pose, fix.cov
         basis: NDArray | None = fix.observable
         along = self.corridor.complete(fix, guess_cov, points, cfg.hough)
         if along is not None:
             pose, cov, basis = along.pose, along.cov, None
             self.stats.placed_along += 1
-        outcome = self.tracker.apply(t, pose, cov, basis)
+        outcome = self._apply(t, pose, cov, basis)
         self.stats.partial_rank += fix.rank < 3
         return ScanStatus(outcome.status), outcome, along, None
 
@@ -385,13 +384,22 @@ class Localizer:
                                         verdict.guess_fit, fix.pose if better else None)
         if found is None:
             return verdict.status, None, None, None
-        outcome = self.tracker.apply(t, found.pose, found.cov, None)
+        outcome = self._apply(t, found.pose, found.cov, None)
         self.stats.points_fixes += 1
         # the scan keeps the verdict's status: the manager still counts it as a scan without a
         # usable fix. The points refine the pose near the guess; they cannot vouch that the
         # guess is the right place, and a wrong pose polished onto nearby walls must still be
         # given up.
         return verdict.status, outcome, None, found
+
+    def _apply(self, t: float, pose: NDArray, cov: NDArray, basis: NDArray | None
+               ) -> UpdateOutcome:
+        """Offer a pose measurement taken at ``t`` to the filter, counting it late when the
+        filter has a newer reading."""
+        newest = self.tracker.time
+        if newest is not None and t < newest:
+            self.stats.late += 1
+        return self.tracker.apply(t, pose, cov, basis)
 
     def on_landmark(self, t: float, label: str, bearing: float) -> None:
         """A recognised landmark (e.g. a goal by its colour) at a bearing: while the map's

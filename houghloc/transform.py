@@ -98,8 +98,9 @@ def _vote_kernel(points: NDArray[np.float64], half_trig32: NDArray[np.float32], 
     # increments are independent. Unsigned cells need no wrap-around check.
     signed = np.zeros((half, 2 * u + 2), np.int32)  # signed rows, a guard cell at each end
     cells = np.empty(half, np.uint32)
+    xs, ys = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
     for k in range(n):
-        x, y = np.float32(points[k, 0]), np.float32(points[k, 1])
+        x, y = xs[k], ys[k]
         for i in range(half):  # the cells first (vectorised), then the counts
             q = fma(y, sin_[i], x * cos_[i]) + shift
             cells[i] = np.uint32(min(max(q, np.float32(0.0)), top))

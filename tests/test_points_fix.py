@@ -14,6 +14,8 @@ from scipy.stats import chi2
 
 from fusion.ambiguity import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
+from fusion.config import LocalizerConfig
+from fusion.localizer import Localizer
 from fusion.points_fix import PointsFix
 from houghloc import HoughConfig, SegmentMap
 from tests.test_scan_odometry import CORRIDOR, ROOM, scan_points
@@ -90,3 +92,19 @@ def test_a_polish_started_elsewhere_is_still_judged_against_the_guess() -> None:
     assert found.fit == 1.0 > found.guess_fit
     tight = np.diag([0.02**2, 0.02**2, math.radians(1.0) ** 2])
     assert points_fix(ROOM).measure(guess, tight, points, HOUGH, start=start) is None
+
+
+@pytest.mark.parametrize("scan_time", [0.15, 0.2])
+def test_a_polished_guess_for_an_earlier_time_counts_as_late(scan_time: float) -> None:
+    """A scan whose lines' fix is refused (too few lines for ``min_fix_lines``) is polished on
+    its points instead; taken before the filter's newest odometry reading, that measurement is
+    late like a late fix (metrics.json's ``late``), and one at the newest reading is not."""
+    config = LocalizerConfig()
+    laser = config.sensors["laser"].model_copy(update={"min_fix_lines": 100})
+    config = config.model_copy(update={"sensors": {**config.sensors, "laser": laser}})
+    localizer = Localizer(SegmentMap(ROOM[:, :2], ROOM[:, 2:], name="test"), config, TRUTH)
+    for t in (0.0, 0.1, 0.2):
+        localizer.on_odometry(t, 0.0, 0.0, 0.0)
+    localizer.on_points(scan_time, scan_points(ROOM, TRUTH), "laser")
+    assert localizer.stats.points_fixes == 1
+    assert localizer.stats.late == (1 if scan_time < 0.2 else 0)
