@@ -435,17 +435,20 @@ def test_votes_count_each_cell_once_and_rank_ties_by_cell(seed: int, n: int, cel
     _, inverse, counts = np.unique(bins, axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.ravel()
     np.testing.assert_array_equal(votes, np.sort(counts)[::-1][: config.max_cells_cheap])
-    means = [np.r_[poses[inverse == j, :2].mean(axis=0),
-                   np.arctan2(np.sin(poses[inverse == j, 2]).sum(),
-                              np.cos(poses[inverse == j, 2]).sum())]
-             for j in range(len(counts))]
+    # each occupied cell's mean pose, θ a circular mean (sums per cell, all cells at once)
+    def per_cell(values: np.ndarray) -> np.ndarray:
+        return np.bincount(inverse, weights=values, minlength=len(counts))
+
+    means = np.column_stack((per_cell(poses[:, 0]) / counts, per_cell(poses[:, 1]) / counts,
+                             np.arctan2(per_cell(np.sin(poses[:, 2])),
+                                        per_cell(np.cos(poses[:, 2])))))
     found: set[int] = set()
     for cell_pose, vote in zip(cells, votes, strict=True):
-        same = [j for j in range(len(counts)) if counts[j] == vote
-                and np.allclose(means[j][:2], cell_pose[:2], atol=1e-9)
-                and abs(float(wrap_angle(means[j][2] - cell_pose[2]))) < 1e-9]
-        assert same and not found & set(same), (cell_pose, vote)
-        found.add(same[0])
+        same = np.flatnonzero((counts == vote)
+                              & np.isclose(means[:, :2], cell_pose[:2], atol=1e-9).all(axis=1)
+                              & (np.abs(wrap_angle(means[:, 2] - cell_pose[2])) < 1e-9))
+        assert len(same) and not found & set(same.tolist()), (cell_pose, vote)
+        found.add(int(same[0]))
 
 
 @settings(max_examples=100, deadline=None)
