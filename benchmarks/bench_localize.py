@@ -21,6 +21,7 @@ from benchmarks.common import (
     ray_scan,
     tiled_map,
     time_interleaved,
+    time_rounds,
 )
 from houghloc import HoughConfig, SegmentMap, localize_scan
 
@@ -94,13 +95,19 @@ def main(argv: list[str] | None = None) -> dict:
             near = np.argsort(np.linalg.norm((big.starts + big.ends) / 2 - pose[:2], axis=1))[:n]
             big = SegmentMap(big.starts[near], big.ends[near], list(big.kinds[near]))
         maps[n] = big
-    # the sizes in alternating rounds: a burst of load on the machine falls on all of them
-    times = time_interleaved({str(n): lambda b=big: localize_scan(pts, b, guess, cfg)
-                              for n, big in maps.items()}, rounds=max(5, args.rounds // 3))
+    # the sizes in alternating rounds: a burst of load on the machine falls on all of them, and
+    # each size is compared with the smallest map in the same round (a paired ratio), so that
+    # the machine's drift between rounds does not read as growth
+    rounds = time_rounds({str(n): lambda b=big: localize_scan(pts, b, guess, cfg)
+                          for n, big in maps.items()}, rounds=args.rounds)
+    smallest = rounds[str(min(maps))]
+    relative = {}
     for n, big in maps.items():
-        growth["map"].append((len(big), times[str(n)]))
-        print(f"   {len(big):6d} segments: {times[str(n)] * 1e3:7.3f} ms")
-    spread = max(times.values()) / min(times.values())
+        relative[n] = float(np.median(rounds[str(n)] / smallest))
+        growth["map"].append((len(big), float(np.median(rounds[str(n)]))))
+        print(f"   {len(big):6d} segments: {np.median(rounds[str(n)]) * 1e3:7.3f} ms "
+              f"({relative[n]:.2f}× of {min(maps)}, median of the rounds' ratios)")
+    spread = max(relative.values()) / min(relative.values())
     results["map_size_spread"] = spread
     print(f"   largest / smallest: {spread:.2f}×  (target ≤ 1.2×)")
     _plot(growth, args.plot)

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 
 from houghloc import SegmentMap
 from houghloc.geometry import ray_segment_distances
@@ -24,6 +25,14 @@ def time_interleaved(funcs: dict[str, Callable[[], object]], rounds: int = 15,
     These machines are noisy: alternating the contenders round by round exposes them to the same
     load, so their ratio means something even when absolute times drift.
     """
+    samples = time_rounds(funcs, rounds, inner)
+    return {k: float(np.median(v)) for k, v in samples.items()}
+
+
+def time_rounds(funcs: dict[str, Callable[[], object]], rounds: int = 15,
+                inner: int = 20) -> dict[str, NDArray[np.float64]]:
+    """Seconds per call of each function in each of ``rounds`` alternating rounds: the k-th
+    entries of two contenders ran side by side, so their ratio is paired."""
     samples: dict[str, list[float]] = {k: [] for k in funcs}
     for f in funcs.values():
         f()  # warm caches and lazy initialisation
@@ -33,7 +42,7 @@ def time_interleaved(funcs: dict[str, Callable[[], object]], rounds: int = 15,
             for _ in range(inner):
                 f()
             samples[name].append((time.perf_counter() - t0) / inner)
-    return {k: float(np.median(v)) for k, v in samples.items()}
+    return {k: np.array(v) for k, v in samples.items()}
 
 
 def ray_scan(m: SegmentMap, pose: np.ndarray, n_beams: int = 361, fov: float = np.pi,
