@@ -1,7 +1,8 @@
-"""Per-scan data kept in columns and sent with one ``send_columns`` call per entity (one
-``log`` call costs ~100 µs whatever its size; a row in a batch a few µs), the paths drawn with a
-number of entities logarithmic in the run's length, and the error series computed as the truth
-arrives.
+"""Rows kept in columns and sent with one ``send_columns`` call per entity (one ``log`` call
+costs ~100 µs whatever its size; a row in a batch a few µs): the occasional rows
+(:class:`ColumnBatch`), the Hough images (:class:`ImageBatch`), the paths drawn with a number
+of entities logarithmic in the run's length, and the error series computed as the truth
+arrives. The scans' own rows: :mod:`fusion.rerun_scans`.
 """
 
 from __future__ import annotations
@@ -37,21 +38,35 @@ class PathPieces:
 
     def __init__(self, entity: str) -> None:
         self.entity = entity
-        self.recent = np.empty((PATH_PIECE + 1, 2))
-        self.count = 0
+        self.recent = NO_POINTS  # the newest piece: it starts where the last full one ended
         self.levels: list[NDArray[np.float64] | None] = []
 
-    def append(self, xy: ArrayLike) -> list[tuple[str, NDArray[np.float64]]]:
-        """Add a pose; return the (entity, polyline) pairs to log, an empty polyline clearing."""
+    def extend(self, xy: NDArray[np.float64]
+               ) -> tuple[pa.Array, list[tuple[int, str, NDArray[np.float64]]]]:
+        """Add poses (their x, y: n×2). Return the newest piece after each pose, as ``n`` line
+        strips, and the (pose index, entity, polyline) of the older pieces' changes, an empty
+        polyline clearing (they happen with that pose)."""
+        done = len(self.recent)
+        poses = np.vstack((self.recent, np.asarray(xy, dtype=float).reshape(-1, 2)))
+        at = np.arange(done, len(poses))
+        # pieces start every PATH_PIECE poses and share their end poses: pose g is in the piece
+        # that starts at PATH_PIECE ⌊(g − 1) / PATH_PIECE⌋ (the first pose starts the first)
+        starts = np.maximum((at - 1) // PATH_PIECE, 0) * PATH_PIECE
+        lengths = at + 1 - starts
+        first = np.repeat(starts - (np.cumsum(lengths) - lengths), lengths)
+        strips = strips_from_points(poses[first + np.arange(int(lengths.sum()))], lengths)
         updates = []
-        if self.count == len(self.recent):
-            updates = self._carry(self.recent.copy())
-            self.recent[0] = self.recent[-1]  # the new piece starts where the last one ended
-            self.count = 1
-        self.recent[self.count] = np.asarray(xy, dtype=float)[:2]
-        self.count += 1
-        updates.append((f"{self.entity}/recent", self.recent[: self.count].copy()))
-        return updates
+        for g in at[(at > PATH_PIECE) & ((at - 1) % PATH_PIECE == 0)].tolist():
+            block = poses[g - 1 - PATH_PIECE:g]
+            updates += [(g - done, entity, line) for entity, line in self._carry(block)]
+        self.recent = poses[starts[-1]:].copy() if len(at) else self.recent
+        return strips, updates
+
+    def append(self, xy: ArrayLike) -> list[tuple[str, NDArray[np.float64]]]:
+        """Add one pose; return the (entity, polyline) pairs to draw, the newest piece last."""
+        _, updates = self.extend(np.asarray(xy, dtype=float)[None, :2])
+        return [(entity, line) for _, entity, line in updates] + [
+            (f"{self.entity}/recent", self.recent.copy())]
 
     def _carry(self, block: NDArray[np.float64]) -> list[tuple[str, NDArray[np.float64]]]:
         updates = []
@@ -75,14 +90,20 @@ NO_POINTS = np.empty((0, 2))
 _STRIPS_TYPE = rr.components.LineStrip2DBatch([[[0.0, 0.0], [1.0, 0.0]]]).as_arrow_array().type
 
 
+def strips_from_points(points: NDArray[np.float64], lengths: ArrayLike) -> pa.Array:
+    """Line strips as one Arrow list array: ``points`` (M×2) cut into strips of ``lengths``."""
+    offsets = np.zeros(len(np.asarray(lengths)) + 1, np.int32)
+    np.cumsum(lengths, out=offsets[1:])
+    flat = pa.array(np.asarray(points, dtype=np.float32).reshape(-1))
+    return pa.ListArray.from_arrays(
+        pa.array(offsets), pa.FixedSizeListArray.from_arrays(flat, type=_STRIPS_TYPE.value_type),
+        type=_STRIPS_TYPE)
+
+
 def strips_array(strips: list[NDArray[np.float64]]) -> pa.Array:
     """Ragged line strips as one Arrow list array (rerun converts a list of strips one by one)."""
     lengths = np.fromiter((len(p) for p in strips), dtype=np.int32, count=len(strips))
-    offsets = np.concatenate(([0], np.cumsum(lengths, dtype=np.int32)))
-    flat = (np.concatenate(strips).astype(np.float32).reshape(-1) if len(strips)
-            else np.empty(0, np.float32))
-    points = pa.FixedSizeListArray.from_arrays(pa.array(flat), type=_STRIPS_TYPE.value_type)
-    return pa.ListArray.from_arrays(pa.array(offsets), points, type=_STRIPS_TYPE)
+    return strips_from_points(np.concatenate(strips) if strips else NO_POINTS, lengths)
 
 
 class ColumnBatch:
@@ -118,6 +139,54 @@ class ColumnBatch:
                                   rr.TimeColumn("scan", sequence=np.asarray(self.scan))],
             columns=self.archetype.columns(**data).partition(self.lengths))
         self.t, self.scan, self.lengths, self.fields = [], [], [], {}
+
+
+class ImageBatch:
+    """The rows of one image entity (a fixed shape and pixel type), written into one block as
+    they come and sent with one ``send_columns`` call: a row costs a copy of its pixels."""
+
+    _BLOB = rr.components.BlobBatch([b""]).as_arrow_array().type
+
+    def __init__(self, entity: str, shape: tuple[int, int], dtype: type[np.unsignedinteger],
+                 rows: int) -> None:
+        self.entity = entity
+        self.shape = shape
+        self.dtype = dtype
+        self.top = int(np.iinfo(dtype).max)
+        self.rows = rows
+        self.t: list[float] = []
+        self.scan: list[int] = []
+        self._block = self._new_block()
+
+    def _new_block(self) -> NDArray[np.unsignedinteger]:
+        # a new block each time: the sinks may still read the one sent last
+        return np.empty((self.rows, *self.shape), self.dtype)
+
+    def add(self, t: float, scan: int, image: NDArray[np.integer], bound: int) -> bool:
+        """Copy one image in, saturated at the pixel type's largest value where its values
+        may exceed it (``bound``: the largest they can be); True when the block is full."""
+        row = self._block[len(self.t)]
+        if bound > self.top:
+            image = np.minimum(image, self.top)
+        np.copyto(row, image, casting="unsafe")
+        self.t.append(t)
+        self.scan.append(scan)
+        return len(self.t) == self.rows
+
+    def send(self, stream: rr.RecordingStream, time_column: Any) -> None:
+        n = len(self.t)
+        if n == 0:
+            return
+        pixels = self._block[:n].reshape(-1).view(np.uint8)
+        size = pixels.size // n
+        buffers = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32) * size),
+                                           pa.array(pixels), type=self._BLOB)
+        stream.send_columns(
+            self.entity, indexes=[time_column(np.asarray(self.t)),
+                                  rr.TimeColumn("scan", sequence=np.asarray(self.scan))],
+            columns=rr.DepthImage.columns(buffer=buffers))
+        self.t, self.scan = [], []
+        self._block = self._new_block()
 
 
 def join_rows(name: str, rows: list) -> Any:

@@ -35,16 +35,19 @@ Timelines: ``time`` (sensor seconds: a duration for simulated clocks, a timestam
 looks like Unix time) and ``scan`` (sequence; events between scans carry only ``time``).
 Angles in the time series are in degrees, lengths in metres.
 
-The Hough image is the accumulator as it is stored (no copy): one row per θ cell, one column per
+The Hough image is the accumulator cell for cell: one row per θ cell, one column per
 ρ cell, so ρ runs left to right from ``rho_min`` and θ top to bottom from 0. Cell (i_θ, i_ρ) is
 the pixel square [i_ρ, i_ρ+1) × [i_θ, i_θ+1), and a continuous (θ, ρ) is drawn at
 u = (ρ − ρ_min)/δρ, v = θ/δθ + ½ (θ cell i is centred on iδθ; ρ cell j spans an interval).
 
-Speed: one ``log`` call costs ~100 µs whatever its size, so per-scan data is buffered and sent
-with one ``send_columns`` call per entity every ``BATCH_SCANS`` scans, every ``BATCH_SECONDS``
-of wall time when serving (a live viewer lags at most that), and at :meth:`RerunLogger.flush`.
-Only the Hough image (where the cost is per pixel), the state log and the hypotheses are logged
-at once; when not serving, the SDK gathers them into chunks of ``FILE_CHUNK_BYTES``.
+Speed: one ``log`` call costs ~100 µs whatever its size, so a scan is kept raw
+(:class:`fusion.rerun_scans.ScanRows`: references to its correction's arrays, a copy of its
+points and pose) and drawn with the others of its batch, one NumPy pass or compiled call per
+field and one ``send_columns`` call per entity, every ``BATCH_SCANS`` scans, every
+``BATCH_SECONDS`` of wall time when serving (a live viewer lags at most that), and at
+:meth:`RerunLogger.flush`. The Hough image is copied into a block at once (the accumulator is
+the biggest array a scan makes); the state log and the hypotheses are logged at once, and when
+not serving the SDK gathers them into chunks of ``FILE_CHUNK_BYTES``.
 
 Paths are logged in blocks because the viewer shows the latest value of an entity: a path sent
 whole at every scan grows quadratically with the run. The newest ``PATH_PIECE`` poses are
@@ -72,7 +75,15 @@ import numpy as np
 import rerun as rr
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.rerun_columns import BATCH_SCANS, ColumnBatch, ErrorSeries, PathPieces
+from fusion.rerun_columns import (
+    BATCH_SCANS,
+    ColumnBatch,
+    ErrorSeries,
+    ImageBatch,
+    PathPieces,
+    strips_from_points,
+)
+from fusion.rerun_scans import HoughRow, ScanRows, hough_columns, scan_points
 from fusion.rerun_serve import GRPC_PORT, SERVE_HOST, WEB_PORT, die_with_parent, web_viewer_command
 from fusion.rerun_view import (
     ARROW_LENGTH,
@@ -86,15 +97,15 @@ from fusion.rerun_view import (
     UNMATCHED,
     WALL_COLOUR,
     LineColours,
+    batch_point_rows,
     covariance_ellipse,
     default_blueprint,
     entity_styles,
     heading_vector,
     hough_marks,
-    point_rows,
 )
 from fusion.status import ScanStatus
-from houghloc.geometry import compose, relative, transform_points
+from houghloc.geometry import compose, relative
 
 if TYPE_CHECKING:
     from fusion.localizer import Estimate
@@ -103,7 +114,9 @@ if TYPE_CHECKING:
 _log = logging.getLogger(__name__)
 
 BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
-IMAGE_BATCH = 25  # Hough images buffered at most: 1.2 MB on Intel's grid, within the cache
+# Hough images buffered per send: a send costs ~0.4 ms whatever its size, a row a copy of its
+# pixels (170 of Intel's 24 kB images a block; 25 a block cost 16 µs an image, 100 cost 6 µs)
+IMAGE_BLOCK_BYTES = 4 << 20
 # (25 replayed the Intel log 2–3 % faster than 100 or 10, measured alternately)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
@@ -112,16 +125,18 @@ UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulat
 METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
            "sigma/theta", "matches", "error/position", "error/heading", "along_corridor")
 _DEGREES = np.array([1.0, 1.0, 180.0 / math.pi])
-_SCALE = _DEGREES.tolist()
 _METRIC_ENTITY = {name: f"metrics/{name}" for name in METRICS}
-_STATUS_RGBA = {status: np.array([rgba], dtype=np.uint8) for status, rgba in STATUS_COLOURS.items()}
+_STATUS_RGBA: dict[str, NDArray[np.uint8]] = {
+    status: np.array([rgba], dtype=np.uint8) for status, rgba in STATUS_COLOURS.items()}
 _UNMATCHED_RGBA = np.array([UNMATCHED], dtype=np.uint8)
 _NO_LINES = np.empty(0, np.int64)
 _NO_ANGLES = np.empty(0)
 
 
-def _floats(values: Any) -> NDArray[np.float64]:
-    return np.ascontiguousarray(values, dtype=float)
+def _path_style(name: str, recent: bool) -> Any:
+    """A path's look; the newest piece, near the robot, carries the path's name: the legend."""
+    return rr.LineStrips2D.from_fields(colors=PATH_COLOURS[name], radii=0.02, draw_order=2.0,
+                                       labels=name if recent else None, show_labels=recent)
 
 
 # ------------------------------------------------------------------------------- the logger
@@ -137,7 +152,7 @@ class RerunLogger:
 
     Per-scan data is buffered and sent in columns every ``BATCH_SCANS`` scans (or, when
     serving, ``BATCH_SECONDS`` of wall time), and by :meth:`flush` / :meth:`close` (the Hough
-    images also every ``IMAGE_BATCH``); the state log and the hypotheses are logged at once.
+    images also every ``IMAGE_BLOCK_BYTES``); the state log and the hypotheses are logged at once.
 
     About 400 lines, on purpose: every stage's writer shares the one stream, its batches, its
     time columns and the map's colours; the parts that stand alone are apart (the look:
@@ -181,16 +196,15 @@ class RerunLogger:
         self._styles = entity_styles()
         self._batches: dict[str, ColumnBatch] = {}
         self._styled: set[str] = set()
-        self._batched_scans = 0
         self._accumulator_entities: dict[tuple[int, int], str] = {}
-        # each Hough image's pixel type and its largest value
-        self._image_type: dict[str, tuple[type[np.unsignedinteger], int]] = {}
+        self._images: dict[str, ImageBatch] = {}  # the Hough images, by entity
         self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
         self._colours = LineColours()
         # compiled (or loaded from the cache) now, not on a scan of the stream
-        point_rows(np.zeros((1, 1), bool), _NO_LINES, _NO_LINES)
+        batch_point_rows(np.zeros(1, bool), np.ones(1, np.int64), np.ones(1, np.int64),
+                         _NO_LINES, _NO_LINES, np.zeros(1, np.int64))
         hough_marks(1.0, 1.0, 0.0, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_LINES,
                     _NO_LINES)
         self._walls: tuple[NDArray[np.float64], NDArray[np.intp]] = (
@@ -203,6 +217,7 @@ class RerunLogger:
         self._odometry: NDArray[np.float64] | None = None
         self._odometry_anchor: tuple[NDArray, NDArray] | None = None  # (est₀, odom₀)
         self._error_series = ErrorSeries()
+        self._rows = ScanRows()  # the scans since the last send
         self._truth_unlogged = False
         for name in METRICS:
             self.stream.log(f"metrics/{name}", rr.SeriesLines(
@@ -239,34 +254,45 @@ class RerunLogger:
 
     def log_odometry(self, t: float, odom_pose: ArrayLike) -> None:
         """Remember the latest odometry pose; the odometry path is drawn at each scan."""
-        self._odometry = np.asarray(odom_pose, dtype=float).reshape(3)
+        self._odometry = np.array(odom_pose, dtype=float).reshape(3)  # kept until sent
 
     def log_scan(self, t: float, index: int, sensor: str, points: NDArray[np.float64],
                  correction: ScanCorrection | None, estimate: Estimate) -> None:
-        """One scan: its points in the world, the robot, the paths, the Hough stage, metrics."""
+        """One scan: its points in the world, the robot, the paths, the Hough stage, metrics
+        (kept raw in :class:`ScanRows`, drawn a batch at a time; the Hough image at once)."""
         t, index = float(t), int(index)
-        pose = np.asarray(estimate.pose, dtype=float)
-        cov = np.asarray(estimate.cov, dtype=float)
+        pose = np.array(estimate.pose, dtype=float)  # copies: kept until the batch is sent
+        cov = np.array(estimate.cov, dtype=float)
         primary = self._is_primary(sensor)
-        self._scan_points(t, index, "world/scan/points" if primary
-                          else f"world/scan/{sensor}/points", points, correction, pose)
-        self._robot(t, index, pose, cov, estimate.status)
+        rows = self._rows
+        row = rows.add_scan(t, index, "world/scan/points" if primary
+                            else f"world/scan/{sensor}/points", points, correction, pose, cov,
+                            estimate.status)
+        if self._odometry is not None:
+            rows.odometry.append((row, self._odometry))
+        if self._truth_unlogged:
+            self._truth_unlogged = False
+            rows.truth.append((row, self._error_series.latest_truth()))
         if primary:
-            self._matched_walls(t, index, correction)
-            self._hough(t, index, correction)
+            rows.matched.append((row, getattr(correction, "matched_map_lines", _NO_LINES)))
+            rows.hough.append(HoughRow.of(row, correction))
+            every = self.accumulator_every
+            if (correction is not None and correction.grid is not None and every > 0
+                    and self._scans_logged % every == 0):
+                self._accumulator(t, index, correction.accumulator, correction.n_points)
         if estimate.status != ScanStatus.ACCEPTED:
             reason = getattr(correction, "reason", "")
             self._batch("log/scan", rr.TextLog).add(
                 t, index, 1, text=[f"scan {index} ({sensor}): {estimate.status}"
                                    + (f": {reason}" if reason else "")],
                 level=["DEBUG" if estimate.status == ScanStatus.NO_FIX else "WARN"])
-        self._metrics(t, index, pose, cov, correction, getattr(estimate, "outcome", None))
+        self._innovation(row, correction, getattr(estimate, "outcome", None))
+        self._error_series.add_estimate(t, index, pose)
         along = getattr(estimate, "along", None)
         if along is not None:
-            self._scalar("along_corridor", t, index, along.offset)
+            rows.along.append((row, float(along.offset)))
         self._scans_logged += 1
-        self._batched_scans += 1
-        if (self._batched_scans >= BATCH_SCANS
+        if (len(rows) >= BATCH_SCANS
                 or time.monotonic() - self._last_send >= self._batch_seconds):
             self._send_batches()
 
@@ -356,11 +382,47 @@ class RerunLogger:
             self.stream.log(entity, style, static=True)
 
     def _send_batches(self, final: bool = False) -> None:
+        self._send_scans()
         self._errors(final)
         for batch in self._batches.values():
             batch.send(self.stream, self._time_column)
-        self._batched_scans = 0
+        for images in self._images.values():
+            images.send(self.stream, self._time_column)
         self._last_send = time.monotonic()
+
+    def _send(self, entity: str, archetype: Any, rows: ScanRows, picked: Any,
+              lengths: ArrayLike | None, **data: Any) -> None:
+        """One entity's rows (``picked``, None: every row), ``lengths`` instances each (None:
+        one), with one ``send_columns`` call; its style is logged before its first rows."""
+        self._style_once(entity, self._styles.get(entity))
+        t, scan = np.asarray(rows.t), np.asarray(rows.scan)
+        if picked is not None:
+            t, scan = t[picked], scan[picked]
+        if len(t) == 0:
+            return
+        self.stream.send_columns(
+            entity, indexes=[self._time_column(t), rr.TimeColumn("scan", sequence=scan)],
+            columns=archetype.columns(**data).partition(
+                np.ones(len(t), np.int64) if lengths is None else lengths))
+
+    def _send_scans(self) -> None:
+        """Every scan since the last send, drawn as columns (:mod:`fusion.rerun_scans`)."""
+        rows, self._rows = self._rows, ScanRows()
+        if len(rows) == 0:
+            return
+        by_entity: dict[str, list[int]] = {}
+        for row, entity in enumerate(rows.points_entity):
+            by_entity.setdefault(entity, []).append(row)
+        for entity, picked in by_entity.items():
+            world, colours, lengths = scan_points(rows, picked, self._colours)
+            self._style_once(entity, self._styles["points"])
+            self._send(entity, rr.Points2D, rows, picked, lengths, positions=world,
+                       colors=colours)
+        self._send_robot(rows)
+        self._send_metrics(rows)
+        if rows.hough:
+            self._send_hough(rows)
+        self._send_matched_walls(rows)
 
     # ---------------------------------------------------------------- world
     def _is_primary(self, sensor: str) -> bool:
@@ -368,130 +430,87 @@ class RerunLogger:
             self._primary_sensor = sensor
         return sensor == self._primary_sensor
 
-    def _scan_points(self, t: float, index: int, entity: str, points: Any, correction: Any,
-                     pose: NDArray[np.float64]) -> None:
-        pts = np.asarray(points, dtype=float).reshape(-1, 2)
-        if not math.isfinite(pts.sum()):  # one pass in the usual case, where all are finite
-            # the Hough method dropped them too: members index what is left
-            pts = pts[np.isfinite(pts).all(axis=1)]
-        rows = self._point_rows(len(pts), correction)  # may grow the colour table
-        colours = self._colours.table[rows]
-        self._batch(entity, rr.Points2D, self._styles["points"]).add(
-            t, index, len(pts), positions=transform_points(pose, pts), colors=colours)
+    def _send_robot(self, rows: ScanRows) -> None:
+        """The estimates (arrows coloured by status, 95 % ellipses), the truth and the paths."""
+        poses, covs = np.array(rows.pose), np.array(rows.cov)
+        colours = np.concatenate([_STATUS_RGBA.get(s, _UNMATCHED_RGBA) for s in rows.status])
+        self._send("world/robot/estimate", rr.Arrows2D, rows, None, None,
+                   origins=poses[:, :2], vectors=heading_vector(poses), colors=colours,
+                   labels=[str(s) for s in rows.status])
+        ellipses = covariance_ellipse(poses[:, :2], covs[:, :2, :2])
+        self._send("world/robot/covariance", rr.LineStrips2D, rows, None, None,
+                   strips=strips_from_points(ellipses.reshape(-1, 2),
+                                             np.full(len(poses), ellipses.shape[1])),
+                   colors=colours)
+        self._send_path(rows, "estimate", list(range(len(rows))), poses)
+        if rows.odometry:
+            picked = [row for row, _ in rows.odometry]
+            odometry = np.array([pose for _, pose in rows.odometry])
+            if self._odometry_anchor is None:
+                self._odometry_anchor = (poses[picked[0]], odometry[0])
+            first_estimate, first_odometry = self._odometry_anchor
+            self._send_path(rows, "odometry", picked,
+                            compose(first_estimate, relative(first_odometry, odometry)))
+        if rows.truth:
+            picked = [row for row, _ in rows.truth]
+            truth = np.array([pose for _, pose in rows.truth])
+            self._send("world/robot/truth", rr.Arrows2D, rows, picked, None,
+                       origins=truth[:, :2], vectors=heading_vector(truth))
+            self._send_path(rows, "truth", picked, truth)
 
-    def _point_rows(self, n: int, correction: Any) -> NDArray[np.int64]:
-        """Colour-table row of each point: its matched map line, else −2 on a line, else −1."""
-        lines = getattr(correction, "lines", None)
-        if lines is None or len(lines) == 0 or lines.members.shape[0] != n:
-            return np.full(n, -1, dtype=np.int64)
-        members = np.ascontiguousarray(lines.members)
-        matches = correction.matches
-        map_lines = np.asarray(correction.matched_map_lines, dtype=np.int64)
-        if matches is None or len(matches) == 0 or len(map_lines) != len(matches):
-            return point_rows(members, _NO_LINES, _NO_LINES)
-        self._colours.ensure(map_lines)
-        return point_rows(members, np.asarray(matches.line, dtype=np.int64), map_lines)
+    def _send_path(self, rows: ScanRows, name: str, picked: list[int],
+                   poses: NDArray[np.float64]) -> None:
+        """A path's newest piece at each picked row and its older pieces' changes
+        (:class:`PathPieces`)."""
+        recent, updates = self._paths[name].extend(poses[:, :2])
+        entity = f"world/path/{name}/recent"
+        self._style_once(entity, _path_style(name, recent=True))
+        self._send(entity, rr.LineStrips2D, rows, picked, None, strips=recent)
+        for k, piece, line in updates:
+            n = 1 if len(line) else 0
+            self._batch(piece, rr.LineStrips2D, _path_style(name, recent=False)).add(
+                rows.t[picked[k]], rows.scan[picked[k]], n, strips=[line][:n])
 
-    def _matched_walls(self, t: float, index: int, correction: ScanCorrection | None) -> None:
-        """The walls of the map lines this scan's lines matched, each in its line's colour (the
+    def _send_matched_walls(self, rows: ScanRows) -> None:
+        """The walls of the map lines each scan's lines matched, each in its line's colour (the
         colour of the points that lie on it)."""
         strips, line_of = self._walls
-        matched = getattr(correction, "matched_map_lines", None)
-        if matched is None or len(matched) == 0 or len(line_of) == 0:
-            self._batch("world/map/matched", rr.LineStrips2D).add(
-                t, index, 0, strips=[], colors=np.empty((0, 4), np.uint8))
-            return
-        lines = frozenset(np.asarray(matched).tolist())
-        if self._last_matched is None or self._last_matched[0] != lines:
-            # consecutive scans mostly match the same lines: their walls are picked once
-            of_line, known = self._walls_of_line, len(self._walls_of_line)
-            # the walls in the map's order, as np.isin(line_of, matched) would pick them
-            keep = np.sort(np.concatenate([of_line[j] for j in lines if j < known]
-                                          or [np.empty(0, np.intp)]))
-            self._colours.ensure(line_of[keep])
-            self._last_matched = (lines, list(strips[keep]), self._colours.table[line_of[keep]])
-        _, walls, colours = self._last_matched
-        self._batch("world/map/matched", rr.LineStrips2D).add(
-            t, index, len(walls), strips=walls, colors=colours)
-
-    def _robot(self, t: float, index: int, pose: NDArray[np.float64], cov: NDArray[np.float64],
-               status: ScanStatus) -> None:
-        colour = _STATUS_RGBA.get(status, _UNMATCHED_RGBA)
-        self._batch("world/robot/estimate", rr.Arrows2D).add(
-            t, index, 1, origins=pose[None, :2], vectors=heading_vector(pose), colors=colour,
-            labels=[status])
-        self._batch("world/robot/covariance", rr.LineStrips2D).add(
-            t, index, 1, strips=[covariance_ellipse(pose, cov[:2, :2])], colors=colour)
-        self._extend_path(t, index, "estimate", pose)
-        if self._odometry is not None:
-            if self._odometry_anchor is None:
-                self._odometry_anchor = (pose.copy(), self._odometry.copy())
-            first_estimate, first_odometry = self._odometry_anchor
-            self._extend_path(t, index, "odometry",
-                              compose(first_estimate, relative(first_odometry, self._odometry)))
-        if self._truth_unlogged:
-            self._truth_unlogged = False
-            truth = self._error_series.latest_truth()
-            self._batch("world/robot/truth", rr.Arrows2D).add(
-                t, index, 1, origins=truth[None, :2], vectors=heading_vector(truth))
-            self._extend_path(t, index, "truth", truth)
-
-    def _extend_path(self, t: float, index: int, name: str, pose: NDArray[np.float64]) -> None:
-        for entity, strip in self._paths[name].append(pose):
-            batch = self._batches.get(entity)
-            if batch is None:
-                # the newest piece, near the robot, carries the path's name: the legend
-                recent = entity.endswith("/recent")
-                batch = self._batch(entity, rr.LineStrips2D, rr.LineStrips2D.from_fields(
-                    colors=PATH_COLOURS[name], radii=0.02, draw_order=2.0,
-                    labels=name if recent else None, show_labels=recent))
-            n = 1 if len(strip) else 0
-            batch.add(t, index, n, strips=[strip][:n])
+        batch = self._batch("world/map/matched", rr.LineStrips2D)
+        for row, matched in rows.matched:
+            if len(matched) == 0 or len(line_of) == 0:
+                batch.add(rows.t[row], rows.scan[row], 0, strips=[],
+                          colors=np.empty((0, 4), np.uint8))
+                continue
+            lines = frozenset(np.asarray(matched).tolist())
+            if self._last_matched is None or self._last_matched[0] != lines:
+                # consecutive scans mostly match the same lines: their walls are picked once
+                of_line, known = self._walls_of_line, len(self._walls_of_line)
+                # the walls in the map's order, as np.isin(line_of, matched) would pick them
+                keep = np.sort(np.concatenate([of_line[j] for j in lines if j < known]
+                                              or [np.empty(0, np.intp)]))
+                self._colours.ensure(line_of[keep])
+                self._last_matched = (lines, list(strips[keep]),
+                                      self._colours.table[line_of[keep]])
+            _, walls, colours = self._last_matched
+            batch.add(rows.t[row], rows.scan[row], len(walls), strips=walls, colors=colours)
 
     # ---------------------------------------------------------------- Hough
-    def _hough(self, t: float, index: int, correction: Any) -> None:
-        grid = getattr(correction, "grid", None)
-        every = self.accumulator_every
-        if grid is not None and every > 0 and self._scans_logged % every == 0:
-            self._accumulator(t, index, correction.accumulator, correction.n_points)
-        lines = getattr(correction, "lines", None)
-        refs = getattr(correction, "references", None)
-        matches = getattr(correction, "matches", None)
-        ref_ids = _NO_LINES if refs is None or grid is None else np.asarray(refs.line, np.int64)
-        self._colours.ensure(ref_ids)
-        if grid is None:
-            peaks, ref_pixels, ends = np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 2, 2))
-            match_line, match_ref = _NO_LINES, _NO_LINES
-        else:
-            line_theta, line_rho = ((_NO_ANGLES, _NO_ANGLES) if lines is None
-                                    else (_floats(lines.theta), _floats(lines.rho)))
-            ref_theta, ref_rho = ((_NO_ANGLES, _NO_ANGLES) if refs is None
-                                  else (_floats(refs.theta), _floats(refs.rho)))
-            match_line, match_ref = _NO_LINES, _NO_LINES
-            if matches is not None and len(matches) and len(line_theta) and len(ref_theta):
-                match_line = np.asarray(matches.line, np.int64)
-                match_ref = np.asarray(matches.ref, np.int64)
-            peaks, ref_pixels, ends = hough_marks(grid.theta_step, grid.rho_step, grid.rho_min,
-                                                  line_theta, line_rho, ref_theta, ref_rho,
-                                                  match_line, match_ref)
-        peak_rows = np.full(len(peaks), -2, dtype=np.intp)
-        if len(ends):
-            peak_rows[match_line] = ref_ids[match_ref]
-        table = self._colours.table
-        self._batch("hough/peaks", rr.Points2D).add(
-            t, index, len(peaks), positions=peaks, colors=table[peak_rows])
-        self._batch("hough/references", rr.Points2D).add(
-            t, index, len(ref_ids), positions=ref_pixels, colors=table[ref_ids],
-            labels=self._colours.label(ref_ids))
-        match_colours = (table[peak_rows[match_line]] if len(ends)
-                         else np.empty((0, 4), np.uint8))
-        self._batch("hough/matches", rr.LineStrips2D).add(
-            t, index, len(ends), strips=list(ends), colors=match_colours)
+    def _send_hough(self, rows: ScanRows) -> None:
+        """Each scan's peaks, references and matches on the accumulator image."""
+        marks = hough_columns(rows.hough, self._colours)
+        picked = [mark.row for mark in rows.hough]
+        self._send("hough/peaks", rr.Points2D, rows, picked, marks["peak_lengths"],
+                   positions=marks["peaks"], colors=marks["peak_colours"])
+        self._send("hough/references", rr.Points2D, rows, picked, marks["reference_lengths"],
+                   positions=marks["references"], colors=marks["reference_colours"],
+                   labels=marks["reference_labels"])
+        self._send("hough/matches", rr.LineStrips2D, rows, picked, marks["match_lengths"],
+                   strips=marks["matches"], colors=marks["match_colours"])
 
     def _accumulator(self, t: float, index: int, votes: NDArray | None, n_points: int) -> None:
-        """The vote image, batched like the time series but sent every ``IMAGE_BATCH`` images
-        (one ``log`` of an image costs ~0.4 ms, a row of a batch ~40 µs). Its format is static
-        per entity: a grid of another shape (another sensor's settings) gets its own entity."""
+        """The vote image, copied into a block sent when ``IMAGE_BLOCK_BYTES`` are full (and with
+        the other batches). Its format is static per entity: a grid of another shape (another
+        sensor's settings) gets its own entity."""
         if votes is None:
             return
         h, w = votes.shape
@@ -500,45 +519,56 @@ class RerunLogger:
             entity = self._accumulator_entities[(h, w)] = (
                 "hough/accumulator" if not self._accumulator_entities
                 else f"hough/accumulator/{h}x{w}")
-        batch = self._batches.get(entity)
+        batch = self._images.get(entity)
         if batch is None:  # the format and style once: building them costs more than the row
             # A cell gets at most one vote per point: 8 bits hold every vote of a sensor whose
             # first scan has at most 255 points (a 180-beam laser: half the bytes of 16 bits);
             # a later scan of more points is drawn saturated there. 16 bits otherwise.
             dtype = np.uint8 if n_points <= 255 else np.uint16
-            self._image_type[entity] = (dtype, int(np.iinfo(dtype).max))
-            batch = self._batch(entity, rr.DepthImage, rr.DepthImage.from_fields(
+            rows = max(IMAGE_BLOCK_BYTES // (h * w * np.dtype(dtype).itemsize), 1)
+            batch = self._images[entity] = ImageBatch(entity, (h, w), dtype, rows)
+            self._style_once(entity, rr.DepthImage.from_fields(
                 format=rr.components.ImageFormat(
                     width=w, height=h,
                     channel_datatype="U8" if dtype is np.uint8 else "U16"),
                 meter=1.0, colormap="viridis", draw_order=0.0))
-        dtype, top = self._image_type[entity]
-        image = (votes if n_points <= top else np.minimum(votes, top)).astype(dtype)
-        batch.add(t, index, 1, buffer=image.reshape(1, -1).view(np.uint8))
-        if len(batch.t) >= IMAGE_BATCH:
+        if batch.add(t, index, votes, n_points):  # a cell gets at most a vote per point
             batch.send(self.stream, self._time_column)
 
     # ---------------------------------------------------------------- time series
-    def _metrics(self, t: float, index: int, pose: NDArray, cov: NDArray, correction: Any,
-                 outcome: Any) -> None:
-        if outcome is not None and outcome.dof > 0 and len(outcome.innovation):
-            innovation = np.asarray(outcome.innovation, dtype=float)
-            basis = getattr(correction, "observable", None)
-            if outcome.dof < 3 and basis is not None and basis.shape[1] == outcome.dof:
-                innovation = basis @ innovation  # observed directions back to (x, y, θ)
-            if innovation.shape == (3,):
-                for name, value in zip(METRICS[:3], (innovation * _DEGREES).tolist(),
-                                       strict=True):
-                    self._scalar(name, t, index, value)
-            self._scalar("nis", t, index, outcome.nis)
-        for k, name in enumerate(METRICS[4:7]):  # σ of x, y, θ
-            self._scalar(name, t, index, math.sqrt(max(float(cov[k, k]), 0.0)) * _SCALE[k])
-        matches = getattr(correction, "matches", None)
-        self._scalar("matches", t, index, len(matches) if matches is not None else 0)
-        self._error_series.add_estimate(t, index, pose)
+    def _innovation(self, row: int, correction: Any, outcome: Any) -> None:
+        """The update's innovation in (x, y, θ) and its NIS, when the scan updated the filter."""
+        if outcome is None or outcome.dof <= 0 or not len(outcome.innovation):
+            return
+        innovation = np.asarray(outcome.innovation, dtype=float)
+        basis = getattr(correction, "observable", None)
+        if outcome.dof < 3 and basis is not None and basis.shape[1] == outcome.dof:
+            innovation = basis @ innovation  # observed directions back to (x, y, θ)
+        if innovation.shape == (3,):
+            x, y, theta = (innovation * _DEGREES).tolist()
+            self._rows.innovation.append((row, x, y, theta))
+        self._rows.nis.append((row, float(outcome.nis)))
 
-    def _scalar(self, name: str, t: float, index: int, value: float) -> None:
-        self._batch(_METRIC_ENTITY[name], rr.Scalars).add(t, index, 1, scalars=float(value))
+    def _send_metrics(self, rows: ScanRows) -> None:
+        """The time series: σ of x, y, θ and the lines matched at every scan; the innovation,
+        the NIS and the corridor placement where there is one."""
+        covs = np.array(rows.cov)
+        sigma = np.sqrt(np.maximum(np.diagonal(covs, axis1=1, axis2=2), 0.0)) * _DEGREES
+        for k, name in enumerate(METRICS[4:7]):
+            self._send(_METRIC_ENTITY[name], rr.Scalars, rows, None, None, scalars=sigma[:, k])
+        self._send(_METRIC_ENTITY["matches"], rr.Scalars, rows, None, None,
+                   scalars=np.array(rows.n_matches, dtype=float))
+        if rows.innovation:
+            values = np.array(rows.innovation)
+            picked = values[:, 0].astype(np.intp)
+            for k, name in enumerate(METRICS[:3]):
+                self._send(_METRIC_ENTITY[name], rr.Scalars, rows, picked, None,
+                           scalars=values[:, k + 1])
+        for name, series in (("nis", rows.nis), ("along_corridor", rows.along)):
+            if series:
+                values = np.array(series)
+                self._send(_METRIC_ENTITY[name], rr.Scalars, rows, values[:, 0].astype(np.intp),
+                           None, scalars=values[:, 1])
 
     def _errors(self, final: bool) -> None:
         """The error series of the estimates whose truth has arrived (:class:`ErrorSeries`)."""
