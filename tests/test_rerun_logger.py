@@ -28,7 +28,13 @@ from fusion.localizer import Estimate
 from fusion.rerun_columns import PATH_PIECE, PathPieces
 from fusion.rerun_logger import RerunLogger
 from fusion.rerun_serve import SERVE_HOST, free_port, web_viewer_command
-from fusion.rerun_view import covariance_ellipse, hough_marks, line_palette, point_rows
+from fusion.rerun_view import (
+    batch_point_rows,
+    covariance_ellipse,
+    hough_marks,
+    line_palette,
+    point_rows,
+)
 from fusion.visualize import NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ray_segment_distances
@@ -455,3 +461,53 @@ def test_a_path_drawn_from_its_entities_latest_values_is_the_whole_path(n: int) 
             drawn = np.vstack([blocks[0]] + [b[1:] for b in blocks[1:]])
             np.testing.assert_array_equal(drawn, poses[: k + 1])
             assert len(latest) <= 2 + np.log2(max(k / PATH_PIECE, 1.0))
+
+
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(1, 6 * PATH_PIECE), cuts=st.lists(st.integers(1, 3 * PATH_PIECE), max_size=8))
+def test_a_path_extended_in_batches_is_drawn_as_pose_by_pose(n: int, cuts: list[int]) -> None:
+    """Poses added a batch at a time give, row for row, the newest piece and the older pieces'
+    changes that adding them one at a time gives."""
+    poses = np.column_stack((np.arange(n, dtype=float), np.sin(np.arange(n, dtype=float))))
+    one, batched = PathPieces("p"), PathPieces("p")
+    expected = []
+    for k, pose in enumerate(poses):
+        *older, (_, recent) = one.append(pose)
+        expected.append((k, recent, older))
+    got, start = [], 0
+    for size in [*cuts, n]:
+        if start >= n:
+            break
+        strips, updates = batched.extend(poses[start:start + size])
+        for i, strip in enumerate(strips.to_pylist()):
+            older = [(entity, line) for k, entity, line in updates if k == i]
+            got.append((start + i, np.asarray(strip, dtype=float).reshape(-1, 2), older))
+        start += size
+    assert len(got) == n
+    for (k, recent, older), (k2, strip, older2) in zip(expected, got, strict=True):
+        assert k == k2
+        np.testing.assert_allclose(strip, recent, atol=1e-4)  # float32 in the recording
+        assert [e for e, _ in older] == [e for e, _ in older2]
+        for (_, a), (_, b) in zip(older, older2, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_scans=st.integers(1, 6))
+def test_the_points_of_many_scans_are_coloured_as_each_alone(seed: int, n_scans: int) -> None:
+    rng = np.random.default_rng(seed)
+    scans = []
+    for _ in range(n_scans):
+        n, k = int(rng.integers(0, 30)), int(rng.integers(0, 5))
+        members = rng.random((n, k)) < 0.3
+        m = int(rng.integers(0, k + 1))
+        matched = rng.permutation(k)[:m].astype(np.int64)
+        scans.append((members, matched, rng.integers(0, 40, m).astype(np.int64)))
+    joined = batch_point_rows(
+        np.concatenate([s[0].reshape(-1) for s in scans]),
+        np.array([s[0].shape[0] for s in scans], np.int64),
+        np.array([s[0].shape[1] for s in scans], np.int64),
+        np.concatenate([s[1] for s in scans]), np.concatenate([s[2] for s in scans]),
+        np.array([len(s[1]) for s in scans], np.int64))
+    alone = [point_rows(*scan) for scan in scans]
+    np.testing.assert_array_equal(joined, np.concatenate(alone))
