@@ -83,7 +83,7 @@ from fusion.rerun_columns import (
     PathPieces,
     strips_from_points,
 )
-from fusion.rerun_scans import HoughRow, ScanRows, hough_columns, scan_points
+from fusion.rerun_scans import HoughRow, ScanRows, hough_columns, moved_points, scan_points
 from fusion.rerun_serve import GRPC_PORT, SERVE_HOST, WEB_PORT, die_with_parent, web_viewer_command
 from fusion.rerun_view import (
     ARROW_LENGTH,
@@ -115,8 +115,11 @@ _log = logging.getLogger(__name__)
 
 BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
 # Hough images buffered per send: a send costs ~0.4 ms whatever its size, a row a copy of its
-# pixels (170 of Intel's 24 kB images a block; 25 a block cost 16 µs an image, 100 cost 6 µs)
-IMAGE_BLOCK_BYTES = 4 << 20
+# pixels into a new block (the sinks keep reading the block sent). 86 of Intel's 24 kB images a
+# block: 25 cost 16 µs an image to send, 100 cost 6 µs; a block of 4 MiB or more is mapped on
+# huge pages by NumPy, whose first touch tripled the copy's 3 µs.
+IMAGE_BLOCK_BYTES = 2 << 20
+WALL_TABLE_CELLS = 1 << 22  # scans × walls looked at in one pass for the matched walls (bytes)
 # (25 replayed the Intel log 2–3 % faster than 100 or 10, measured alternately)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
@@ -205,13 +208,12 @@ class RerunLogger:
         # compiled (or loaded from the cache) now, not on a scan of the stream
         batch_point_rows(np.zeros(1, bool), np.ones(1, np.int64), np.ones(1, np.int64),
                          _NO_LINES, _NO_LINES, np.zeros(1, np.int64))
+        moved_points(np.zeros((1, 2)), np.zeros((1, 3)), np.ones(1, np.int64))
         hough_marks(1.0, 1.0, 0.0, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_LINES,
                     _NO_LINES)
         self._walls: tuple[NDArray[np.float64], NDArray[np.intp]] = (
             np.empty((0, 2, 2)), np.empty(0, np.intp))
-        self._walls_of_line: list[NDArray[np.intp]] = []
-        # the last scan's matched map lines, their walls and the walls' colours
-        self._last_matched: tuple[frozenset[int], list, NDArray[np.uint8]] | None = None
+        self._n_lines = 0  # the map's lines
         self._primary_sensor: str | None = None
         self._paths = {name: PathPieces(f"world/path/{name}") for name in PATH_COLOURS}
         self._odometry: NDArray[np.float64] | None = None
@@ -240,12 +242,7 @@ class RerunLogger:
         ids = np.asarray(segment_map.ids, dtype=object)
         # the walls in one colour; each scan highlights those it matched (world/map/matched)
         self._walls = (strips[is_wall], line_of[is_wall])
-        # each map line's walls (indices into self._walls), for the walls a scan matched
-        wall_lines = line_of[is_wall]
-        order = np.argsort(wall_lines, kind="stable")
-        bounds = np.searchsorted(wall_lines[order], np.arange(n_lines + 1))
-        self._walls_of_line = [order[bounds[j]:bounds[j + 1]] for j in range(n_lines)]
-        self._last_matched = None
+        self._n_lines = n_lines
         for entity, keep, radius, colour in (("world/map/walls", is_wall, 0.03, WALL_COLOUR),
                                              ("world/map/lines", ~is_wall, 0.02, PAINTED)):
             self.stream.log(entity, rr.LineStrips2D(
@@ -467,32 +464,40 @@ class RerunLogger:
         self._style_once(entity, _path_style(name, recent=True))
         self._send(entity, rr.LineStrips2D, rows, picked, None, strips=recent)
         for k, piece, line in updates:
+            batch = self._batches.get(piece)
+            if batch is None:  # the style is built once: it costs more than a row
+                batch = self._batch(piece, rr.LineStrips2D, _path_style(name, recent=False))
             n = 1 if len(line) else 0
-            self._batch(piece, rr.LineStrips2D, _path_style(name, recent=False)).add(
-                rows.t[picked[k]], rows.scan[picked[k]], n, strips=[line][:n])
+            batch.add(rows.t[picked[k]], rows.scan[picked[k]], n, strips=[line][:n])
 
     def _send_matched_walls(self, rows: ScanRows) -> None:
-        """The walls of the map lines each scan's lines matched, each in its line's colour (the
-        colour of the points that lie on it)."""
-        strips, line_of = self._walls
-        batch = self._batch("world/map/matched", rr.LineStrips2D)
-        for row, matched in rows.matched:
-            if len(matched) == 0 or len(line_of) == 0:
-                batch.add(rows.t[row], rows.scan[row], 0, strips=[],
-                          colors=np.empty((0, 4), np.uint8))
-                continue
-            lines = frozenset(np.asarray(matched).tolist())
-            if self._last_matched is None or self._last_matched[0] != lines:
-                # consecutive scans mostly match the same lines: their walls are picked once
-                of_line, known = self._walls_of_line, len(self._walls_of_line)
-                # the walls in the map's order, as np.isin(line_of, matched) would pick them
-                keep = np.sort(np.concatenate([of_line[j] for j in lines if j < known]
-                                              or [np.empty(0, np.intp)]))
-                self._colours.ensure(line_of[keep])
-                self._last_matched = (lines, list(strips[keep]),
-                                      self._colours.table[line_of[keep]])
-            _, walls, colours = self._last_matched
-            batch.add(rows.t[row], rows.scan[row], len(walls), strips=walls, colors=colours)
+        """The walls of the map lines each scan's lines matched, in the map's order, each in its
+        line's colour (the colour of the points that lie on it)."""
+        walls, line_of = self._walls
+        picked = [row for row, _ in rows.matched]
+        matched = [np.asarray(lines, np.intp) for _, lines in rows.matched]
+        counts = np.fromiter(map(len, matched), np.intp, len(matched))
+        n_lines = self._n_lines
+        rows_at_once = max(WALL_TABLE_CELLS // max(len(line_of), 1), 1)
+        scan_of, wall = [], []
+        for first in range(0, len(matched), rows_at_once):
+            part = matched[first:first + rows_at_once]
+            # scans × map lines: which lines each scan matched (ids beyond the map: no wall)
+            table = np.zeros((len(part), n_lines + 1), bool)
+            table[np.repeat(np.arange(len(part)), counts[first:first + rows_at_once]),
+                  np.minimum(np.concatenate(part), n_lines)] = True
+            # a scan's walls are those of its lines, in the map's order (np.isin(line_of, …))
+            scans, walls_seen = np.nonzero(table[:, line_of])
+            scan_of.append(scans + first)
+            wall.append(walls_seen)
+        scan_of_all = np.concatenate(scan_of) if scan_of else np.empty(0, np.intp)
+        wall_all = np.concatenate(wall) if wall else np.empty(0, np.intp)
+        self._colours.ensure(line_of)
+        self._send("world/map/matched", rr.LineStrips2D, rows, picked,
+                   np.bincount(scan_of_all, minlength=len(matched)),
+                   strips=strips_from_points(walls[wall_all].reshape(-1, 2),
+                                             np.full(len(wall_all), 2)),
+                   colors=self._colours.table[line_of[wall_all]])
 
     # ---------------------------------------------------------------- Hough
     def _send_hough(self, rows: ScanRows) -> None:

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from fusion.rerun_columns import strips_from_points
 from fusion.rerun_view import LineColours, batch_point_rows, hough_marks
+from houghloc.jit import njit
 
 _NO_LINES = np.empty(0, np.int64)
 _NO_ANGLES = np.empty(0)
@@ -121,10 +122,8 @@ def scan_points(rows: ScanRows, picked: list[int], colours: LineColours
         lengths = np.bincount(np.repeat(np.arange(len(points)), lengths)[finite],
                               minlength=len(points))
         robot = robot[finite]
-    poses = np.repeat(np.array([rows.pose[r] for r in picked]).reshape(-1, 3), lengths, axis=0)
-    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
-    world = np.column_stack((poses[:, 0] + c * robot[:, 0] - s * robot[:, 1],
-                             poses[:, 1] + s * robot[:, 0] + c * robot[:, 1]))
+    world = moved_points(robot, np.array([rows.pose[r] for r in picked]).reshape(-1, 3),
+                         lengths)
     members = [rows.members[r] for r in picked]
     usable = [m if m is not None and m.shape[0] == n else None
               for m, n in zip(members, lengths.tolist(), strict=True)]
@@ -141,6 +140,23 @@ def scan_points(rows: ScanRows, picked: list[int], colours: LineColours
         _joined(match_lines), map_all,
         np.fromiter(map(len, match_lines), np.int64, len(match_lines)))
     return world, colours.table[table_rows], lengths
+
+
+@njit
+def moved_points(points: NDArray[np.float64], poses: NDArray[np.float64],
+                 lengths: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Robot-frame points (the first ``lengths[0]`` seen from ``poses[0]``, and so on) in the
+    map frame: p ↦ R(θ) p + (x, y), as :func:`houghloc.geometry.transform_points` per scan."""
+    out = np.empty_like(points)
+    at = 0
+    for k in range(lengths.shape[0]):
+        x, y, theta = poses[k, 0], poses[k, 1], poses[k, 2]
+        c, s = np.cos(theta), np.sin(theta)
+        for i in range(at, at + lengths[k]):
+            out[i, 0] = x + c * points[i, 0] - s * points[i, 1]
+            out[i, 1] = y + s * points[i, 0] + c * points[i, 1]
+        at += lengths[k]
+    return out
 
 
 def hough_columns(marks: list[HoughRow], colours: LineColours) -> dict[str, Any]:
