@@ -70,7 +70,6 @@ class PairTable:
 
 
 @lru_cache(maxsize=64)
-@lru_cache(maxsize=64)
 def gate_threshold(probability: float, dof: int = 2) -> float:
     """The χ²(dof) quantile at ``probability``: a gate on squared Mahalanobis distances
     (memoised: SciPy's quantile costs tens of microseconds, and a scan asks a few times)."""
