@@ -120,7 +120,6 @@ BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
 # huge pages by NumPy, whose first touch tripled the copy's 3 µs.
 IMAGE_BLOCK_BYTES = 2 << 20
 WALL_TABLE_CELLS = 1 << 22  # scans × walls looked at in one pass for the matched walls (bytes)
-# (25 replayed the Intel log 2–3 % faster than 100 or 10, measured alternately)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
 UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulation's
@@ -157,9 +156,10 @@ class RerunLogger:
     serving, ``BATCH_SECONDS`` of wall time), and by :meth:`flush` / :meth:`close` (the Hough
     images also every ``IMAGE_BLOCK_BYTES``); the state log and the hypotheses are logged at once.
 
-    About 400 lines, on purpose: every stage's writer shares the one stream, its batches, its
+    About 500 lines, on purpose: every stage's writer shares the one stream, its batches, its
     time columns and the map's colours; the parts that stand alone are apart (the look:
-    :mod:`fusion.rerun_view`; the columns, paths and error series: :mod:`fusion.rerun_columns`;
+    :mod:`fusion.rerun_view`; the scans' raw rows and the arrays drawn from them:
+    :mod:`fusion.rerun_scans`; the columns, paths and error series: :mod:`fusion.rerun_columns`;
     the served viewer: :mod:`fusion.rerun_serve`).
     """
 

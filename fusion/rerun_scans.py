@@ -204,9 +204,3 @@ def _joined(arrays: list[NDArray], empty: NDArray = _NO_LINES) -> NDArray:
 def _float(values: NDArray) -> NDArray[np.float64]:
     return np.ascontiguousarray(values, dtype=float)
 
-
-def status_strips(rgba: dict[str, NDArray[np.uint8]], default: NDArray[np.uint8],
-                  statuses: list[str]) -> NDArray[np.uint8]:
-    """One colour row per status."""
-    return np.concatenate([rgba.get(s, default) for s in statuses])
-

@@ -27,8 +27,10 @@ from fusion.ekf import UpdateOutcome
 from fusion.localizer import Estimate
 from fusion.rerun_columns import PATH_PIECE, PathPieces
 from fusion.rerun_logger import RerunLogger
+from fusion.rerun_scans import HoughRow, hough_columns
 from fusion.rerun_serve import SERVE_HOST, free_port, web_viewer_command
 from fusion.rerun_view import (
+    LineColours,
     batch_point_rows,
     covariance_ellipse,
     hough_marks,
@@ -511,3 +513,28 @@ def test_the_points_of_many_scans_are_coloured_as_each_alone(seed: int, n_scans:
         np.array([len(s[1]) for s in scans], np.int64))
     alone = [point_rows(*scan) for scan in scans]
     np.testing.assert_array_equal(joined, np.concatenate(alone))
+
+
+@pytest.mark.parametrize("grids", [((0.05, 0.1, -20.0), (0.05, 0.1, -20.0)),
+                                   ((0.05, 0.1, -20.0), (0.02, 0.05, -10.0))])
+def test_the_hough_marks_of_a_batch_are_each_scans_own(grids: tuple) -> None:
+    """Marks drawn for a batch (one grid, or a grid per scan) are those of each scan alone,
+    its match indices shifted to its own lines and references."""
+    rng = np.random.default_rng(3)
+    marks = []
+    for row, grid in enumerate((*grids, None)):
+        n_lines, n_refs = (0, 0) if grid is None else (4 + row, 6)
+        pairs = rng.permutation(min(n_lines, n_refs))[:3]
+        marks.append(HoughRow(row, grid, rng.uniform(0, 6.28, n_lines), rng.uniform(-5, 5, n_lines),
+                              rng.uniform(0, 6.28, n_refs), rng.uniform(-5, 5, n_refs),
+                              rng.integers(0, 9, n_refs), pairs.astype(np.int64),
+                              rng.permutation(n_refs)[:len(pairs)].astype(np.int64)))
+    columns = hough_columns(marks, LineColours())
+    alone = [hough_marks(*m.grid, m.line_theta, m.line_rho, m.ref_theta, m.ref_rho,
+                         m.match_line, m.match_ref) for m in marks if m.grid is not None]
+    np.testing.assert_allclose(columns["peaks"], np.concatenate([a[0] for a in alone]))
+    np.testing.assert_allclose(columns["references"], np.concatenate([a[1] for a in alone]))
+    ends = np.asarray(columns["matches"].to_pylist(), dtype=float).reshape(-1, 2, 2)
+    np.testing.assert_allclose(ends, np.concatenate([a[2] for a in alone]), rtol=1e-6)
+    assert columns["peak_lengths"].tolist() == [4, 5, 0]
+    assert columns["match_lengths"].tolist() == [3, 3, 0]
