@@ -280,15 +280,19 @@ def run_node(segment_map: SegmentMap, config: LocalizerConfig,
     from rclpy.executors import ExternalShutdownException
 
     rclpy.init(args=["houghloc", *ros_args])
-    node = LocalizerNode(segment_map, config, initial_pose, logger)
+    node: LocalizerNode | None = None
     try:
+        # built inside: the node publishes its latched state as it comes up, and a signal sent
+        # on seeing it may arrive before the spin starts
+        node = LocalizerNode(segment_map, config, initial_pose, logger)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        node.destroy_node()
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
         # printed, not logged: a signal has already shut the ROS context (and /rosout) down
-        print(f"houghloc: {node.scans} scans localized, {node.dropped_scans} dropped",
-              file=sys.stderr)
+        scans, dropped = (node.scans, node.dropped_scans) if node is not None else (0, 0)
+        print(f"houghloc: {scans} scans localized, {dropped} dropped", file=sys.stderr)
     return 0
