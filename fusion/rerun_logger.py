@@ -116,7 +116,7 @@ _log = logging.getLogger(__name__)
 BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
 # Hough images buffered per send: a send costs ~0.4 ms whatever its size, a row a copy of its
 # pixels into a new block (the sinks keep reading the block sent). 86 of Intel's 24 kB images a
-# block: 25 cost 16 µs an image to send, 100 cost 6 µs; a block of 4 MiB or more is mapped on
+# block: 25 a send cost 16 µs an image, 100 cost 6 µs; a block of 4 MiB or more is mapped on
 # huge pages by NumPy, whose first touch tripled the copy's 3 µs.
 IMAGE_BLOCK_BYTES = 2 << 20
 WALL_TABLE_CELLS = 1 << 22  # scans × walls looked at in one pass for the matched walls (bytes)
