@@ -18,7 +18,9 @@ the next scan.
 from __future__ import annotations
 
 import math
+import signal
 import sys
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -63,6 +65,8 @@ PENDING_SCANS = 10
 """Scans held for odometry at most; beyond, the oldest is dropped (the node is behind)."""
 ODOMETRY_KEPT = 1000
 """Odometry readings kept to place map → odom at a scan's time: 10 s at 100 Hz."""
+STOP_CHECK_SECONDS = 0.1
+"""s: how long a signal to stop may wait for the spin to notice it."""
 
 LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -277,22 +281,36 @@ def run_node(segment_map: SegmentMap, config: LocalizerConfig,
              ros_args: list[str]) -> int:
     """``houghloc ros2``: spin the node until Ctrl-C, SIGTERM (as ``ros2 launch`` and systemd
     stop a node) or a shutdown; 0 when it ends cleanly."""
-    from rclpy.executors import ExternalShutdownException
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
 
-    rclpy.init(args=["houghloc", *ros_args])
+    # A signal only asks the loop below to stop. Raised as an exception (Ctrl-C's
+    # KeyboardInterrupt) it could land inside rclpy's own code, an executor half built, and
+    # leave a traceback; rclpy's own handlers would shut the context down under the node
+    # still being built. So rclpy installs none, and the context ends in the `finally`.
+    stop = threading.Event()
+    previous = {signum: signal.signal(signum, lambda *_: stop.set())
+                for signum in (signal.SIGINT, signal.SIGTERM)}
     node: LocalizerNode | None = None
+    executor: SingleThreadedExecutor | None = None
     try:
-        # built inside: the node publishes its latched state as it comes up, and a signal sent
-        # on seeing it may arrive before the spin starts
+        rclpy.init(args=["houghloc", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
         node = LocalizerNode(segment_map, config, initial_pose, logger)
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
+        executor = SingleThreadedExecutor(context=node.context)
+        executor.add_node(node)
+        while not stop.is_set():
+            executor.spin_once(timeout_sec=STOP_CHECK_SECONDS)
+    except ExternalShutdownException:
         pass
     finally:
+        if executor is not None:
+            executor.shutdown()
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-        # printed, not logged: a signal has already shut the ROS context (and /rosout) down
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        # printed, not logged: the ROS context (and /rosout) is shut down by now
         scans, dropped = (node.scans, node.dropped_scans) if node is not None else (0, 0)
         print(f"houghloc: {scans} scans localized, {dropped} dropped", file=sys.stderr)
     return 0
