@@ -156,15 +156,15 @@ class ImageBatch:
         self.rows = rows
         self.t: list[float] = []
         self.scan: list[int] = []
-        self._block = self._new_block()
-
-    def _new_block(self) -> NDArray[np.unsignedinteger]:
-        # a new block each time: the sinks may still read the one sent last
-        return np.empty((self.rows, *self.shape), self.dtype)
+        # a new block after each send, made at the next row: the sinks may still read the one
+        # sent last, and no block is made for a row that never comes (at the close)
+        self._block: NDArray[np.unsignedinteger] | None = None
 
     def add(self, t: float, scan: int, image: NDArray[np.integer], bound: int) -> bool:
         """Copy one image in, saturated at the pixel type's largest value where its values
         may exceed it (``bound``: the largest they can be); True when the block is full."""
+        if self._block is None:
+            self._block = np.empty((self.rows, *self.shape), self.dtype)
         row = self._block[len(self.t)]
         if bound > self.top:
             image = np.minimum(image, self.top)
@@ -175,7 +175,7 @@ class ImageBatch:
 
     def send(self, stream: rr.RecordingStream, time_column: Any) -> None:
         n = len(self.t)
-        if n == 0:
+        if n == 0 or self._block is None:
             return
         pixels = self._block[:n].reshape(-1).view(np.uint8)
         size = pixels.size // n
@@ -186,7 +186,7 @@ class ImageBatch:
                                   rr.TimeColumn("scan", sequence=np.asarray(self.scan))],
             columns=rr.DepthImage.columns(buffer=buffers))
         self.t, self.scan = [], []
-        self._block = self._new_block()
+        self._block = None
 
 
 def join_rows(name: str, rows: list) -> Any:

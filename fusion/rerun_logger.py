@@ -461,7 +461,8 @@ class RerunLogger:
         (:class:`PathPieces`)."""
         recent, updates = self._paths[name].extend(poses[:, :2])
         entity = f"world/path/{name}/recent"
-        self._style_once(entity, _path_style(name, recent=True))
+        if entity not in self._styled:  # the style is built once: it costs more than a send
+            self._style_once(entity, _path_style(name, recent=True))
         self._send(entity, rr.LineStrips2D, rows, picked, None, strips=recent)
         for k, piece, line in updates:
             batch = self._batches.get(piece)

@@ -31,6 +31,7 @@ if not tf2_msgs_available():
 
 from benchmarks.bench_ros2 import office_run, stream_through_node
 from fusion.config import LocalizerConfig
+from fusion.ros2.node import STOP_CHECK_SECONDS
 from houghloc.geometry import compose
 
 RESET_AT = 150
@@ -89,20 +90,25 @@ def test_the_node_shuts_down_cleanly(through_node):
     assert math.isfinite(result.shutdown_seconds)
 
 
-@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
-def test_the_command_runs_the_node_until_a_signal(signum, tmp_path):
-    """`houghloc ros2` comes up (its latched state arrives), then stops cleanly on a signal."""
+@pytest.mark.parametrize(("signum", "sigint"), [
+    (signal.SIGINT, signal.SIG_DFL), (signal.SIGTERM, signal.SIG_DFL),
+    (signal.SIGTERM, signal.SIG_IGN)], ids=["SIGINT", "SIGTERM", "SIGINT-ignored"])
+def test_the_command_runs_the_node_until_a_signal(signum, sigint, tmp_path):
+    """`houghloc ros2` comes up (its latched state arrives), then stops cleanly on a signal.
+    Started with SIGINT ignored (a background job of a shell without job control), it keeps
+    SIGINT ignored and stops on SIGTERM."""
     from std_msgs.msg import String
 
     from fusion.ros2.node import LATCHED
 
-    domain = str(50 + int(signum))  # a DDS domain of its own: no crosstalk with other tests
+    # a DDS domain of its own: no crosstalk with other tests
+    domain = str(50 + int(signum) + (10 if sigint is signal.SIG_IGN else 0))
     env = {**os.environ, "ROS_DOMAIN_ID": domain}
     node = subprocess.Popen(
         [sys.executable, "-m", "fusion", "ros2", "--map", "office", "--config", "office-laser",
          "--ros-args", "-r", "__node:=houghloc_cli"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        preexec_fn=lambda: signal.signal(signal.SIGINT, sigint))
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=int(domain))
     try:
@@ -117,6 +123,10 @@ def test_the_command_runs_the_node_until_a_signal(signum, tmp_path):
         while not states and time.monotonic() < deadline and node.poll() is None:
             executor.spin_once(timeout_sec=0.1)
         assert states and states[0].startswith("lost"), node.stderr.read() if node.poll() else ""
+        if sigint is signal.SIG_IGN:
+            node.send_signal(signal.SIGINT)
+            with pytest.raises(subprocess.TimeoutExpired):  # ignored: the node spins on
+                node.wait(timeout=10 * STOP_CHECK_SECONDS)
         node.send_signal(signum)
         _, err = node.communicate(timeout=20)
     finally:

@@ -287,10 +287,13 @@ def run_node(segment_map: SegmentMap, config: LocalizerConfig,
     # A signal only asks the loop below to stop. Raised as an exception (Ctrl-C's
     # KeyboardInterrupt) it could land inside rclpy's own code, an executor half built, and
     # leave a traceback; rclpy's own handlers would shut the context down under the node
-    # still being built. So rclpy installs none, and the context ends in the `finally`.
+    # still being built. So rclpy installs none, and the context ends in the `finally`. A
+    # signal the parent set to be ignored stays ignored (a shell without job control starts
+    # its background jobs with SIGINT ignored, so that Ctrl-C at the prompt spares them).
     stop = threading.Event()
     previous = {signum: signal.signal(signum, lambda *_: stop.set())
-                for signum in (signal.SIGINT, signal.SIGTERM)}
+                for signum in (signal.SIGINT, signal.SIGTERM)
+                if signal.getsignal(signum) is not signal.SIG_IGN}
     node: LocalizerNode | None = None
     executor: SingleThreadedExecutor | None = None
     try:
