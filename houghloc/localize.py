@@ -86,7 +86,7 @@ def clean_points(points_xy: ArrayLike) -> tuple[NDArray[np.float64], int]:
         return np.empty((0, 2)), 0
     if pts.ndim != 2 or pts.shape[1] != 2:
         raise ValueError(f"points must be an N×2 array of (x, y), got shape {pts.shape}")
-    if math.isfinite(pts.sum()):  # the usual case, one pass (NaN and ±inf make the sum non-finite)
+    if _all_finite(pts):  # the usual case: one compiled pass, no mask
         return pts, 0
     finite = np.isfinite(pts).all(axis=1)
     return pts[finite], int((~finite).sum())
@@ -97,6 +97,15 @@ def scan_reach(points: NDArray[np.float64]) -> float:
     metre, rounded up to whole metres so that the map's memoised visibility is reused."""
     return float(math.ceil(math.sqrt(_max_norm_sq(np.ascontiguousarray(points, dtype=float)))
                            + 0.5))
+
+
+@njit
+def _all_finite(points: NDArray[np.float64]) -> bool:
+    for i in range(points.shape[0]):
+        for j in range(points.shape[1]):
+            if not math.isfinite(points[i, j]):
+                return False
+    return True
 
 
 @njit
@@ -266,11 +275,7 @@ def localize_scan(
     # The correction must be plausible given both uncertainties: Δᵀ (P + C)⁻¹ Δ in the observable
     # directions, against the χ² gate (a filter will run the same test on its innovation).
     wrapped = _wrapped(offset)
-    if disp.rank == 3:
-        spread = inverse_3x3(prior + disp.cov)
-        distance = wrapped @ spread @ wrapped
-    else:
-        distance = _observed_distance(wrapped, prior + disp.cov, disp.observable)
+    distance = _correction_distance(wrapped, prior, disp.cov, disp.observable)
     if distance > gate_threshold(config.gate_probability, disp.rank):
         doubts.append("correction far outside the guess's uncertainty")
     rank_note = [] if disp.rank == 3 else [
@@ -291,9 +296,13 @@ def localize_scan(
 
 
 @njit
-def _observed_distance(step: NDArray, cov: NDArray, basis: NDArray) -> float:
-    """(Bᵀs)ᵀ (BᵀCB)⁻¹ (Bᵀs): the squared Mahalanobis length of ``step`` in the directions of
-    ``basis`` B (3×k) under ``cov`` C."""
+def _correction_distance(step: NDArray, prior: NDArray, fix_cov: NDArray, basis: NDArray
+                         ) -> float:
+    """(Bᵀs)ᵀ (BᵀCB)⁻¹ (Bᵀs), C = P + C_fix: the squared Mahalanobis length of ``step`` in the
+    directions of ``basis`` B (3×k) under both uncertainties; sᵀC⁻¹s when B spans the pose."""
+    cov = prior + fix_cov
+    if basis.shape[1] == 3:
+        return float(step @ inverse_3x3(cov) @ step)
     transposed = np.ascontiguousarray(basis.T)
     reduced = transposed @ cov @ basis
     seen = transposed @ step

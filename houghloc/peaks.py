@@ -46,13 +46,25 @@ def _peaks_kernel(acc: NDArray[np.integer], threshold: int, w: int, h: int, limi
     i_theta = np.empty(64, np.intp)
     i_rho = np.empty(64, np.intp)
     count = 0
-    for i in range(n_theta):
-        top = acc[i, 0]  # most rows hold no cell above the threshold: one vectorised pass
-        for j in range(1, n_rho):
+    # Only columns [lo, hi] hold a cell at or above the threshold (a scan's votes reach as far
+    # as its farthest point): the cells outside can neither be a peak nor suppress one, which
+    # must be at least as high. One vectorised pass finds them.
+    column_top = acc[0].copy()
+    for i in range(1, n_theta):
+        for j in range(n_rho):
+            column_top[j] = max(column_top[j], acc[i, j])
+    lo, hi = 0, n_rho - 1
+    while lo <= hi and column_top[lo] < threshold:
+        lo += 1
+    while hi >= lo and column_top[hi] < threshold:
+        hi -= 1
+    for i in range(n_theta if lo <= hi else 0):
+        top = acc[i, lo]  # most rows hold no cell above the threshold: one vectorised pass
+        for j in range(lo + 1, hi + 1):
             top = max(top, acc[i, j])
         if top < threshold:
             continue
-        for j in range(n_rho):
+        for j in range(lo, hi + 1):
             v = acc[i, j]
             if v < threshold:
                 continue

@@ -11,6 +11,7 @@ is the row θ at −ρ, since (θ + π, ρ) ≡ (θ, −ρ).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -96,24 +97,50 @@ def _vote_kernel(points: NDArray[np.float64], half_trig32: NDArray[np.float32], 
     # point by point, all rows at once: consecutive points of a wall fall in the same cell of a
     # row, and counting them one after the other would wait on each increment; across rows the
     # increments are independent. Unsigned cells need no wrap-around check.
-    signed = np.zeros((half, 2 * u + 2), np.int32)  # signed rows, a guard cell at each end
-    cells = np.empty(half, np.uint32)
     xs, ys = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
+    # |ρ| ≤ |p|: the signed rows hold only the cells the farthest point can reach (two more for
+    # rounding), stored from the full row's cell u − r; the full row's other cells get no vote
+    r = min(u, _reach_cells(xs, ys, cos_, sin_))
+    skip = u - r
+    signed = np.zeros((half, 2 * r + 2), np.int32)  # signed rows, a guard cell at each end
+    cells = np.empty(half, np.uint32)
     for k in range(n):
         x, y = xs[k], ys[k]
         for i in range(half):  # the cells first (vectorised), then the counts
             q = fma(y, sin_[i], x * cos_[i]) + shift
-            cells[i] = np.uint32(min(max(q, np.float32(0.0)), top))
+            cells[i] = np.uint32(min(max(q, np.float32(0.0)), top)) - np.uint32(skip)
         for i in range(half):
             signed[i, cells[i]] += 1
-    # cell j of row θ holds ρ ∈ [(j − m)δ, (j − m + 1)δ): the signed cell j − m; in row θ + π
-    # the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard
+    # cell j of row θ holds ρ ∈ [(j − m)δ, (j − m + 1)δ): the full row's signed cell j − m; in
+    # row θ + π the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard. The
+    # stored cells are those of the full row's u − r to u + r + 1: cells [first, last) of a row.
+    first, last = max(m - 1 - r, 0), min(r + 1 + m, n_rho)
     for i in range(half):
-        forward = signed[i, u + 1 - m: u + 1 - m + n_rho]
-        backward = signed[i, u + m + 1 - n_rho: u + m + 1]  # read from its end
-        row = acc[i]  # two loops, not one: each is then a vectorised copy
-        for j in range(n_rho):
-            row[j] = forward[j]
+        row = acc[i]  # separate loops: each is then a vectorised fill or copy
         mirrored = acc[i + half]
-        for j in range(n_rho):
-            mirrored[j] = backward[n_rho - 1 - j]
+        for j in range(first):
+            row[j] = 0
+            mirrored[j] = 0
+        for j in range(last, n_rho):
+            row[j] = 0
+            mirrored[j] = 0
+        forward = signed[i, r + 1 - m + first: r + 1 - m + last]
+        for j in range(last - first):
+            row[first + j] = forward[j]
+        backward = signed[i, r + m + 1 - last: r + m + 1 - first]  # read from its end
+        for j in range(last - first):
+            mirrored[first + j] = backward[last - first - 1 - j]
+
+
+@njit
+def _reach_cells(xs: NDArray[np.float32], ys: NDArray[np.float32], cos_: NDArray[np.float32],
+                 sin_: NDArray[np.float32]) -> int:
+    """A bound on |ρ|/δρ over the points and rows, plus two cells: |ρ| ≤ |p|·|(cos θ, sin θ)|,
+    the rows' trig already over δρ; the float32 cells are exact to far less than a cell."""
+    far = 0.0
+    for k in range(xs.shape[0]):
+        far = max(far, float(xs[k]) * float(xs[k]) + float(ys[k]) * float(ys[k]))
+    scale = 0.0
+    for i in range(cos_.shape[0]):
+        scale = max(scale, float(cos_[i]) * float(cos_[i]) + float(sin_[i]) * float(sin_[i]))
+    return int(math.sqrt(far * scale)) + 2
