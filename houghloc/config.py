@@ -4,11 +4,37 @@ names; radians inside)."""
 from __future__ import annotations
 
 import math
+import threading
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 MAX_ACCUMULATOR_CELLS = 10_000_000
 """Cells of one Hough accumulator (40 MB of int32): 0.1° × 1 cm to ±20 m is 1.4 million."""
+
+T = TypeVar("T")
+_DERIVED: dict[int, tuple[BaseModel, dict[str, Any]]] = {}
+_DERIVED_CONFIGS = 32  # configurations remembered (a sweep's tasks each have one)
+_DERIVED_LOCK = threading.Lock()
+
+
+def derived(config: BaseModel, name: str, build: Callable[[], T]) -> T:
+    """``build()``, a value computed from the (frozen) ``config`` alone, once per configuration
+    object: the per-scan code asks for the same settings at every scan, and computing them
+    (properties, χ² quantiles, tuples of a dozen fields) cost more than the compiled work they
+    feed. Keyed by the object's identity, which it keeps alive while remembered; not stored on
+    the object, since ``model_copy`` would carry it over to a changed copy."""
+    entry = _DERIVED.get(id(config))
+    if entry is None or entry[0] is not config:
+        with _DERIVED_LOCK:
+            if len(_DERIVED) >= _DERIVED_CONFIGS:
+                del _DERIVED[next(iter(_DERIVED))]
+            entry = _DERIVED[id(config)] = (config, {})
+    values = entry[1]
+    if name not in values:
+        values[name] = build()
+    return values[name]  # type: ignore[no-any-return]
 
 
 class HoughConfig(BaseModel):

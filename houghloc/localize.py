@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from houghloc.config import HoughConfig
+from houghloc.config import HoughConfig, derived
 from houghloc.displacement import (
     UNOBSERVED_VARIANCE,
     Displacement,
@@ -124,16 +124,10 @@ def observe_lines(points: NDArray[np.float64], config: HoughConfig
         pts = np.ascontiguousarray(points, dtype=float)
         unit = config.range_sigma_growth <= 0
         weights = _NO_WEIGHTS if unit else point_weights(pts, config)
+        grid_args, refine_args = derived(config, "observe_lines", lambda: _observe_args(config))
         acc, *found = _observe_kernel(
-            pts, weights, unit, grid.half_trig32, grid.signed_cells, grid.margin_cells,
-            grid.n_rho, grid.theta_step, grid.rho_step, grid.rho_min,
-            max(config.peak_min_votes, math.ceil(config.peak_fraction * len(pts))),
-            config.nms_theta_cells, config.nms_rho_cells, 2 * config.max_peaks,
-            config.refine_max_band or config.rho_step, config.refine_iterations,
-            config.refine_band_sigmas, config.refine_min_band, config.theta_step, config.rho_step,
-            config.piece_gap, config.min_piece_points, config.min_line_length,
-            config.max_line_sigma, config.point_sigma_floor, config.line_theta_floor,
-            config.line_rho_floor)
+            pts, weights, unit, *grid_args,
+            max(config.peak_min_votes, math.ceil(config.peak_fraction * len(pts))), *refine_args)
         lines = Lines(*found)
     else:
         acc = vote(points, grid)
@@ -146,6 +140,20 @@ def observe_lines(points: NDArray[np.float64], config: HoughConfig
 
 
 _NO_WEIGHTS = np.empty(0)
+
+
+def _observe_args(config: HoughConfig) -> tuple[tuple, tuple]:
+    """:func:`_observe_kernel`'s arguments that depend on the configuration alone: those before
+    the peaks' vote threshold and those after it."""
+    grid = make_grid(config)
+    return ((grid.half_trig32, grid.signed_cells, grid.margin_cells, grid.n_rho, grid.theta_step,
+             grid.rho_step, grid.rho_min),
+            (config.nms_theta_cells, config.nms_rho_cells, 2 * config.max_peaks,
+             config.refine_max_band or config.rho_step, config.refine_iterations,
+             config.refine_band_sigmas, config.refine_min_band, config.theta_step, config.rho_step,
+             config.piece_gap, config.min_piece_points, config.min_line_length,
+             config.max_line_sigma, config.point_sigma_floor, config.line_theta_floor,
+             config.line_rho_floor))
 
 
 def point_weights(points: NDArray[np.float64], config: HoughConfig) -> NDArray[np.float64]:

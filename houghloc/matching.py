@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import chi2
 
-from houghloc.config import HoughConfig
+from houghloc.config import HoughConfig, derived
 from houghloc.geometry import TWO_PI
 from houghloc.jit import njit
 from houghloc.refine import Lines
@@ -129,11 +129,13 @@ def _match(lines: Lines, refs: References, table: PairTable, pose: NDArray, pose
 
 
 def match_settings(config: HoughConfig) -> tuple[float, float, float, bool, float, float, float]:
-    """The association's settings, in :func:`_match_kernel`'s order."""
-    margin = -1.0 if config.decisive_d2_margin is None else config.decisive_d2_margin
-    return (gate_threshold(config.gate_probability), config.extent_margin,
-            config.min_extent_coverage, config.nearest_neighbour_only, margin, config.theta_step,
-            config.rho_step)
+    """The association's settings, in :func:`_match_kernel`'s order (once per configuration)."""
+    def build() -> tuple[float, float, float, bool, float, float, float]:
+        margin = -1.0 if config.decisive_d2_margin is None else config.decisive_d2_margin
+        return (gate_threshold(config.gate_probability), config.extent_margin,
+                config.min_extent_coverage, config.nearest_neighbour_only, margin,
+                config.theta_step, config.rho_step)
+    return derived(config, "match_settings", build)
 
 
 def matches_found(lines: Lines, table: PairTable | None, li: NDArray, rj: NDArray,

@@ -32,11 +32,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
-from houghloc.config import HoughConfig
+from houghloc.config import HoughConfig, derived
 from houghloc.jit import njit
 from houghloc.segment_map import SegmentMap, check_grid_size
 
@@ -69,6 +70,13 @@ class WallCells:
     normal: NDArray[np.float64]
     """each segment's unit normal, its map line's: the same for every segment of a line"""
     line: NDArray[np.int64]
+
+    @cached_property
+    def kernel_args(self) -> tuple:
+        """The cells as :func:`_polish_kernel` takes them (built once)."""
+        return (float(self.origin[0]), float(self.origin[1]), 1.0 / self.cell, self.width,
+                self.height, self.first, self.candidates, self.starts, self.ends, self.normal,
+                self.line)
 
 
 def build_wall_cells(map: SegmentMap, kinds: tuple[str, ...], gate: float) -> WallCells:
@@ -144,9 +152,11 @@ def _kernel_args(points: NDArray, weights: NDArray | None, cells: WallCells, pos
     return (np.ascontiguousarray(points, dtype=float),
             _ONE if unit else np.ascontiguousarray(weights, dtype=float), unit,
             np.array(pose, dtype=float), np.ascontiguousarray(basis, dtype=float),
-            cells.origin[0], cells.origin[1], 1.0 / cells.cell, cells.width, cells.height,
-            cells.first, cells.candidates, cells.starts, cells.ends, cells.normal, cells.line,
-            float(config.polish_gate or 0.0), config.line_rho_floor**2,
+            *cells.kernel_args, *derived(config, "polish", lambda: _config_args(config)))
+
+
+def _config_args(config: HoughConfig) -> tuple[float, float, float, float, int]:
+    return (float(config.polish_gate or 0.0), config.line_rho_floor**2,
             config.line_theta_floor**2, config.point_sigma_floor**2, config.min_piece_points)
 
 
