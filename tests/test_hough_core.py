@@ -99,6 +99,36 @@ def test_peaks_wrap_around_theta() -> None:
     assert list(zip(peaks.i_theta.tolist(), peaks.i_rho.tolist(), strict=True)) == [(0, 50)]
 
 
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), n_theta=st.integers(8, 24), n_rho=st.integers(1, 40),
+       w=st.integers(1, 3), h=st.integers(1, 3), threshold=st.integers(2, 6),
+       empty=st.integers(0, 40), limit=st.integers(1, 40))
+def test_peaks_follow_their_definition(seed, n_theta, n_rho, w, h, threshold, empty,
+                                       limit) -> None:
+    """Every cell at or above the threshold that no cell of its window (±w rows, wrapping
+    around θ; ±h columns, cut at the ends) exceeds, strongest first, in row order among equals,
+    the first ``limit``; with columns of low counts beside the votes, as a scan leaves beyond its
+    farthest point."""
+    rng = np.random.default_rng(seed)
+    acc = rng.integers(0, 8, (n_theta, n_rho)).astype(np.int32)
+    acc[:, : min(empty, n_rho) // 2] = rng.integers(0, threshold, (n_theta, min(empty, n_rho) // 2))
+    acc[:, n_rho - min(empty, n_rho) // 3:] = 0
+    config = HoughConfig(nms_theta_cells=w, nms_rho_cells=h, peak_min_votes=threshold,
+                         peak_fraction=0.01)
+    expected = []
+    for i in range(n_theta):
+        for j in range(n_rho):
+            rows = [(i + d) % n_theta for d in range(-w, w + 1)]
+            window = acc[rows][:, max(j - h, 0): j + h + 1]
+            if acc[i, j] >= threshold and acc[i, j] >= window.max():
+                expected.append((-int(acc[i, j]), i, j))
+    expected = sorted(expected, key=lambda e: e[0])[:limit]  # stable: row order among equals
+    peaks = find_peaks(acc, 1, config, limit=limit)
+    assert list(zip(peaks.i_theta.tolist(), peaks.i_rho.tolist(), strict=True)) == [
+        (i, j) for _, i, j in expected]
+    assert peaks.votes.tolist() == [-v for v, _, _ in expected]
+
+
 def test_line_with_normal_at_the_wrap_is_one_precise_line() -> None:
     rng = np.random.default_rng(0)
     for theta in (math.radians(0.7), math.radians(359.3), 0.0):

@@ -352,3 +352,21 @@ def test_beams_become_the_points_of_their_definition(seed, n, max_range, min_ran
 def test_beams_and_angles_of_different_lengths_are_refused() -> None:
     with pytest.raises(ValueError, match="3 ranges but 2 beam angles"):
         ranges_to_points([1.0, 2.0, 3.0], [0.0, 0.1])
+
+
+def test_settings_derived_from_a_configuration_follow_each_copy(robocup) -> None:
+    """A scan localized under a configuration, then under a copy with one setting changed, gets
+    the copy's settings: what is derived once per configuration is keyed by the object, not
+    carried over by ``model_copy``."""
+    from houghloc.matching import match_settings
+
+    config = HoughConfig()
+    pose = np.array([1.0, 0.5, 0.3])
+    scan = laser_scan(robocup, pose, np.random.default_rng(2), LASER)
+    points = ranges_to_points(scan.ranges, scan.angles, LASER.max_range)
+    observe_lines(points, config)
+    first = match_settings(config)
+    narrow = config.model_copy(update={"gate_probability": 0.5, "max_peaks": 2})
+    assert match_settings(narrow)[0] < first[0]  # the χ² gate at 0.5, not at the default
+    assert len(observe_lines(points, narrow)[2]) <= 2 < len(observe_lines(points, config)[2])
+    assert match_settings(config) == first
