@@ -299,8 +299,8 @@ def localize_scan(
     return ScanCorrection(
         guess, pose, wrapped, cov, information, disp.rank, disp.observable,
         disp.unobservable, matches, ambiguous, "; ".join(rank_note + doubts + notes),
-        matched_map_lines=refs.line[matches.ref],
-        references=refs, **{k: v for k, v in stages.items() if k != "references"})
+        n_points=len(points), grid=grid, accumulator=acc, lines=lines, references=refs,
+        matched_map_lines=refs.line[matches.ref])
 
 
 @njit
