@@ -138,6 +138,13 @@ class HoughConfig(BaseModel):
                 f"the Hough grid would have {cells:,} cells (θ every {self.theta_step_deg:g}°, "
                 f"ρ every {self.rho_step:g} m to {self.rho_max:g} m), more than the "
                 f"{MAX_ACCUMULATOR_CELLS:,} allowed: coarsen theta_step_deg or rho_step")
+        # the peaks' suppression window wraps around θ once: it must not span the circle
+        n_theta = 2 * max(2, round(math.pi / self.theta_step))  # the grid's rows (transform)
+        if 2 * self.nms_theta_cells + 1 > n_theta:
+            raise ValueError(
+                f"nms_theta_cells = {self.nms_theta_cells}: the peaks' window "
+                f"({2 * self.nms_theta_cells + 1} rows) would be wider than the grid's {n_theta} "
+                f"θ rows (every {self.theta_step_deg:g}°); at most {(n_theta - 1) // 2}")
         return self
 
     @property

@@ -354,6 +354,7 @@ def test_map_build_with_a_pose_ten_km_off_names_the_scan(tmp_path):
     ({"sensors": {"laser": {"mount": [0, math.nan, 0]}}}, "sensors.laser.mount.1"),
     ({"sensors": {"laser": {"hough": {"rho_step": math.inf}}}}, "sensors.laser.hough.rho_step"),
     ({"sensors": {"laser": {"hough": {"theta_step_deg": 1e-6}}}}, "sensors.laser.hough"),
+    ({"sensors": {"laser": {"hough": {"nms_theta_cells": 60}}}}, "nms_theta_cells = 60"),
 ])
 def test_configs_refuse_non_finite_and_absurd_values_by_field(setting, field):
     from fusion.config import ConfigError, LocalizerConfig
