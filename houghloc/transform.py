@@ -77,7 +77,8 @@ def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int32]:
     The signed ρ of every (point, θ < π) is computed in float32 (it resolves ρ to a micrometre
     at 20 m; the grid is centimetres) as ρ/δρ = (x cos θ + y sin θ)/δρ, one fused multiply-add.
     The cell coordinate is shifted so that truncation is floor; votes beyond ±``rho_max`` clip
-    into a guard cell at each end of the signed row, which no cell reads. Each signed vote lands
+    into a guard cell at each end of the signed row, which no cell reads; so do the votes of a
+    point that is not finite (NaN or ±inf cast none). Each signed vote lands
     in two rows of the unfolded accumulator (θ ∈ [0, 2π), ρ ≥ ρ_min): row θ at ρ, and row θ + π
     at −ρ, since (θ + π, ρ) ≡ (θ, −ρ); a vote within the margin of ρ = 0 counts in both.
     Returns the accumulator, ``n_theta × n_rho``.
@@ -92,28 +93,32 @@ def vote(points: NDArray[np.float64], grid: HoughGrid) -> NDArray[np.int32]:
 def _vote_kernel(points: NDArray[np.float64], half_trig32: NDArray[np.float32], u: int, m: int,
                  acc: NDArray[np.int32]) -> None:
     half, n_rho, n = half_trig32.shape[1], acc.shape[1], points.shape[0]
-    shift, top = np.float32(u + 1), np.float32(2 * u + 1)  # signed cell c − (u + 1) holds ρ/δρ
+    shift = np.float32(u + 1)  # signed cell c − (u + 1) holds ρ/δρ
     cos_, sin_ = half_trig32[0].copy(), half_trig32[1].copy()
     # point by point, all rows at once: consecutive points of a wall fall in the same cell of a
     # row, and counting them one after the other would wait on each increment; across rows the
     # increments are independent. Unsigned cells need no wrap-around check.
     xs, ys = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
-    # |ρ| ≤ |p|: the signed rows hold only the cells the farthest point can reach (two more for
-    # rounding), stored from the full row's cell u − r; the full row's other cells get no vote
-    r = min(u, _reach_cells(xs, ys, cos_, sin_))
-    skip = u - r
-    signed = np.zeros((half, 2 * r + 2), np.int32)  # signed rows, a guard cell at each end
+    # |ρ| ≤ |p|: when the farthest point reaches r < u cells, the signed rows hold only the full
+    # row's cells u − r − 1 to u + r + 2: the cells read below (u − r to u + r + 1) and a guard
+    # at each end. The full row's other cells get no vote.
+    r = _reach_cells(xs, ys, cos_, sin_, u)
+    skip, size = (u - r - 1, 2 * r + 4) if r < u else (0, 2 * u + 2)
+    low, high = np.float32(skip), np.float32(skip + size - 1)  # the guards, in full-row cells
+    signed = np.zeros((half, size), np.int32)
     cells = np.empty(half, np.uint32)
     for k in range(n):
         x, y = xs[k], ys[k]
         for i in range(half):  # the cells first (vectorised), then the counts
             q = fma(y, sin_[i], x * cos_[i]) + shift
-            cells[i] = np.uint32(min(max(q, np.float32(0.0)), top)) - np.uint32(skip)
+            q = q if q >= low else low  # NaN too: a non-finite point votes in a guard cell
+            q = q if q <= high else high
+            cells[i] = np.uint32(q) - np.uint32(skip)
         for i in range(half):
             signed[i, cells[i]] += 1
     # cell j of row θ holds ρ ∈ [(j − m)δ, (j − m + 1)δ): the full row's signed cell j − m; in
-    # row θ + π the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard. The
-    # stored cells are those of the full row's u − r to u + r + 1: cells [first, last) of a row.
+    # row θ + π the mirrored signed cell −(j − m + 1); both shifted by u + 1 for the guard, and
+    # by −skip where they are stored. Cells [first, last) of a row can hold votes.
     first, last = max(m - 1 - r, 0), min(r + 1 + m, n_rho)
     for i in range(half):
         row = acc[i]  # separate loops: each is then a vectorised fill or copy
@@ -124,23 +129,27 @@ def _vote_kernel(points: NDArray[np.float64], half_trig32: NDArray[np.float32], 
         for j in range(last, n_rho):
             row[j] = 0
             mirrored[j] = 0
-        forward = signed[i, r + 1 - m + first: r + 1 - m + last]
+        forward = signed[i, u + 1 - m + first - skip: u + 1 - m + last - skip]
         for j in range(last - first):
             row[first + j] = forward[j]
-        backward = signed[i, r + m + 1 - last: r + m + 1 - first]  # read from its end
+        backward = signed[i, u + m + 1 - last - skip: u + m + 1 - first - skip]  # from its end
         for j in range(last - first):
             mirrored[first + j] = backward[last - first - 1 - j]
 
 
 @njit
 def _reach_cells(xs: NDArray[np.float32], ys: NDArray[np.float32], cos_: NDArray[np.float32],
-                 sin_: NDArray[np.float32]) -> int:
-    """A bound on |ρ|/δρ over the points and rows, plus two cells: |ρ| ≤ |p|·|(cos θ, sin θ)|,
-    the rows' trig already over δρ; the float32 cells are exact to far less than a cell."""
+                 sin_: NDArray[np.float32], u: int) -> int:
+    """A bound on |ρ|/δρ over the finite points and the rows, plus two cells, at most ``u``:
+    |ρ| ≤ |p|·|(cos θ, sin θ)|, the rows' trig already over δρ; the float32 cells are exact to
+    far less than a cell."""
     far = 0.0
     for k in range(xs.shape[0]):
-        far = max(far, float(xs[k]) * float(xs[k]) + float(ys[k]) * float(ys[k]))
+        d = float(xs[k]) * float(xs[k]) + float(ys[k]) * float(ys[k])
+        if d > far and d < math.inf:
+            far = d
     scale = 0.0
     for i in range(cos_.shape[0]):
         scale = max(scale, float(cos_[i]) * float(cos_[i]) + float(sin_[i]) * float(sin_[i]))
-    return int(math.sqrt(far * scale)) + 2
+    bound = math.sqrt(far * scale)
+    return u if not bound + 2.0 < u else int(bound) + 2

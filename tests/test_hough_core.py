@@ -48,6 +48,19 @@ def test_vote_matches_naive_double_loop(config: HoughConfig, reach: float) -> No
     np.testing.assert_array_equal(vote(pts, grid), naive)
 
 
+@pytest.mark.parametrize("bad", [(math.nan, 1.0), (math.inf, 0.0), (-math.inf, 2.0),
+                                 (math.nan, math.nan), (1e200, 1e200), (1e30, 0.0)])
+@pytest.mark.parametrize("spread", [0.05, 3.0, 30.0])
+def test_a_non_finite_or_absurd_point_casts_no_vote(bad, spread) -> None:
+    """A point that is not finite, or far beyond ρ_max, leaves the accumulator as the other
+    points make it, whatever their reach (votes kept to the cells they can reach)."""
+    grid = make_grid(CFG)
+    pts = np.random.default_rng(5).uniform(-spread, spread, (40, 2))
+    np.testing.assert_array_equal(vote(np.vstack((pts[:20], [bad], pts[20:])), grid),
+                                  vote(pts, grid))
+    assert len(observe_lines(np.vstack((pts, [bad])), CFG)[2]) == len(observe_lines(pts, CFG)[2])
+
+
 @settings(max_examples=40, deadline=None)
 @given(gap=st.floats(0.2, 3.0), n_left=st.integers(5, 40), n_right=st.integers(1, 40))
 def test_a_line_splits_exactly_at_gaps_wider_than_piece_gap(gap, n_left, n_right) -> None:
