@@ -180,6 +180,25 @@ def test_nan_and_inf_points_are_dropped_not_propagated(robocup) -> None:
     assert c.ok and math.hypot(*(c.pose[:2] - true[:2])) < 0.02
 
 
+@pytest.mark.parametrize("absurd", [1e9, 1e200, -1e300])
+def test_absurd_points_are_dropped_and_named(robocup, absurd) -> None:
+    """A coordinate no range sensor reports (whose square may overflow) is dropped like a NaN,
+    and the reason says which kind was dropped; the rest of the scan localizes as without it."""
+    rng = np.random.default_rng(4)
+    true = np.array([0.5, 0.3, 0.7])
+    scan = laser_scan(robocup, true, rng, LASER)
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0)
+    bad = points.copy()
+    bad[::9, 0] = absurd
+    clean = localize_scan(points[np.abs(bad).max(axis=1) < 1e6], robocup, true + [0.1, 0.1, 0.05])
+    c = localize_scan(bad, robocup, true + [0.1, 0.1, 0.05])
+    assert c.ok and np.array_equal(c.pose, clean.pose)
+    assert "beyond 1e+06 m dropped" in localize_scan(np.full((50, 2), absurd), robocup,
+                                                     true).reason
+    mixed = np.vstack((np.full((5, 2), np.nan), np.full((5, 2), absurd)))
+    assert "10 non-finite or beyond" in localize_scan(mixed, robocup, true).reason
+
+
 def test_all_outlier_scans_give_no_confident_answer(robocup) -> None:
     rng = np.random.default_rng(9)
     for _ in range(20):
