@@ -34,7 +34,7 @@ def derived(config: BaseModel, name: str, build: Callable[[], T]) -> T:
     values = entry[1]
     if name not in values:
         values[name] = build()
-    return values[name]  # type: ignore[no-any-return]
+    return values[name]
 
 
 class HoughConfig(BaseModel):
