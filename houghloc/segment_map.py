@@ -117,6 +117,7 @@ class SegmentMap:
         self.visibility_cell = visibility_cell
         self.landmarks: dict[str, tuple[float, float]] = {}
         self._visibility_cache: dict[tuple, NDArray[np.int32]] = {}
+        self._kind_masks: dict[tuple[str, ...], NDArray[np.bool_]] = {}
 
     def _check_extent(self, name: str) -> None:
         ends = np.concatenate((self.starts, self.ends))
@@ -306,27 +307,22 @@ class SegmentMap:
         hit = self._visibility_cache.get(key)
         if hit is not None:
             return _unpack_visible(hit)
-        cand = self.segments_near(origin, max_range)
-        cand = cand[np.isin(self.kinds[cand], kinds)]
-        walls = cand[self.is_wall[cand]]
-        visible, clearance = (self._first_hits(origin, walls, max_range, n_rays) if len(walls)
-                              else (walls, np.inf))
-        segs = np.concatenate((visible, cand[~self.is_wall[cand]]))
-        lines, seg_ref = np.unique(self.line_of_segment[segs], return_inverse=True)
-        out = (segs, lines, seg_ref.reshape(-1))
+        packed, clearance = _visible_packed(
+            self.starts, self.ends, self._samples, self._first_sample, self._kind_mask(kinds),
+            self.is_wall, self.line_of_segment, _ray_directions(n_rays), origin[0], origin[1],
+            max_range + self._index_spacing, max_range)
         if clearance > 1.5 * cell:
             if len(self._visibility_cache) >= _VISIBILITY_CACHE_SIZE:
                 self._visibility_cache.pop(next(iter(self._visibility_cache)))
-            self._visibility_cache[key] = _pack_visible(*out)
-        return out
+            self._visibility_cache[key] = packed
+        return _unpack_visible(packed)
 
-    def _first_hits(self, origin: tuple[float, float], segs: NDArray[np.intp], max_range: float,
-                    n_rays: int) -> tuple[NDArray[np.intp], float]:
-        """Segments that are the first wall hit by at least one of ``n_rays`` rays, and the
-        distance from the origin to the nearest of ``segs``."""
-        hit, clearance = _first_hits_and_clearance(
-            _ray_directions(n_rays), max_range, self.starts[segs], self.ends[segs], *origin)
-        return segs[hit], clearance
+    def _kind_mask(self, kinds: tuple[str, ...]) -> NDArray[np.bool_]:
+        """Which segments are of one of ``kinds`` (computed once per tuple of kinds)."""
+        mask = self._kind_masks.get(kinds)
+        if mask is None:
+            mask = self._kind_masks[kinds] = np.isin(self.kinds, kinds)
+        return mask
 
 
 @lru_cache(maxsize=8)
@@ -336,6 +332,51 @@ def _ray_directions(n_rays: int) -> NDArray[np.float64]:
     dirs = np.column_stack((np.cos(phi), np.sin(phi)))
     dirs.flags.writeable = False
     return dirs
+
+
+@njit
+def _visible_packed(starts: NDArray, ends: NDArray, samples: NDArray, first_sample: NDArray,
+                    kind_ok: NDArray, is_wall: NDArray, line_of_segment: NDArray, dirs: NDArray,
+                    ox: float, oy: float, near: float, max_range: float
+                    ) -> tuple[NDArray[np.int32], float]:
+    """:meth:`SegmentMap._visible` without its memo, in one compiled call: of the segments of
+    the wanted kinds with a sample within ``near`` of the origin, the walls that are the first
+    hit of a ray (:func:`_first_hits_and_clearance`) then every other kind, each in the map's
+    order; their lines (sorted, each once) and each segment's row among those lines, packed as
+    :func:`_unpack_visible` reads them; and the distance from the origin to the nearest of
+    those walls (inf without one)."""
+    cand = _segments_near(starts, ends, samples, first_sample, ox, oy, near)
+    walls = np.empty(len(cand), np.intp)
+    others = np.empty(len(cand), np.intp)
+    n_walls = n_others = 0
+    for j in cand:
+        if not kind_ok[j]:
+            continue
+        if is_wall[j]:
+            walls[n_walls] = j
+            n_walls += 1
+        else:
+            others[n_others] = j
+            n_others += 1
+    clearance = np.inf
+    n_visible = 0
+    if n_walls:
+        hit, clearance = _first_hits_and_clearance(dirs, max_range, starts[walls[:n_walls]],
+                                                   ends[walls[:n_walls]], ox, oy)
+        for k in range(n_walls):
+            if hit[k]:
+                walls[n_visible] = walls[k]
+                n_visible += 1
+    segs = np.concatenate((walls[:n_visible], others[:n_others]))
+    line_ids = line_of_segment[segs]
+    lines = np.unique(line_ids)
+    n_segs, n_lines = len(segs), len(lines)
+    packed = np.empty(2 + 2 * n_segs + n_lines, np.int32)
+    packed[0], packed[1] = n_segs, n_lines
+    packed[2:2 + n_segs] = segs
+    packed[2 + n_segs:2 + n_segs + n_lines] = lines
+    packed[2 + n_segs + n_lines:] = np.searchsorted(lines, line_ids)
+    return packed, clearance
 
 
 @njit
@@ -430,14 +471,10 @@ def _predict_references(line_alpha: NDArray, line_r: NDArray, line_normal: NDArr
     return theta, rho, beta, s0, s1
 
 
-def _pack_visible(segs: NDArray, lines: NDArray, seg_ref: NDArray) -> NDArray[np.int32]:
-    """One memo entry: [n_segs, n_lines, segs…, lines…, seg_ref…] as a single int32 array
-    (three arrays would cost three ~100-byte headers for a handful of indices)."""
-    return np.concatenate(([len(segs), len(lines)], segs, lines, seg_ref)).astype(np.int32)
-
-
 def _unpack_visible(packed: NDArray[np.int32]
                     ) -> tuple[NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]]:
+    """One memo entry, [n_segs, n_lines, segs…, lines…, seg_ref…] in a single int32 array
+    (three arrays would cost three ~100-byte headers for a handful of indices), unpacked."""
     n_segs, n_lines = int(packed[0]), int(packed[1])
     body = packed[2:].astype(np.intp)
     return body[:n_segs], body[n_segs:n_segs + n_lines], body[n_segs + n_lines:]
