@@ -16,7 +16,8 @@ from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.status import ScanStatus
-from houghloc.geometry import Pose, compose, positive_definite, wrap_scalar
+from houghloc.geometry import TWO_PI, Pose, compose, positive_definite, wrap_scalar
+from houghloc.jit import njit
 from houghloc.matching import gate_threshold
 
 _FULL_BASIS = np.eye(3)
@@ -52,11 +53,30 @@ def motion_jacobians(
 
 def symmetric_pd(p: NDArray[np.float64]) -> NDArray[np.float64]:
     """P ← (P + Pᵀ)/2, with eigenvalues raised to a tiny floor if rounding made it indefinite."""
-    p = 0.5 * (p + p.T)
+    p = _symmetrized(p)
     if positive_definite(p):
         return p
     w, v = np.linalg.eigh(p)
     return (v * np.maximum(w, _EIGEN_FLOOR)) @ v.T
+
+
+@njit
+def _symmetrized(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(P + Pᵀ)/2, element by element as NumPy computes it."""
+    out = np.empty_like(p)
+    for i in range(p.shape[0]):
+        for j in range(p.shape[1]):
+            out[i, j] = 0.5 * (p[i, j] + p[j, i])
+    return out
+
+
+@njit
+def _wrapped_measurement(z: NDArray[np.float64], x: NDArray[np.float64]
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """x + y and y = z − x with its angle wrapped to [-π, π) (:func:`wrap_scalar`): the
+    measurement to hand filterpy for a full-rank update, whose plain z − Hx is then y."""
+    y = np.array([z[0] - x[0], z[1] - x[1], (z[2] - x[2] + math.pi) % TWO_PI - math.pi])
+    return x + y, y
 
 
 def _constant_jacobian(_x: NDArray[np.float64], h: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -113,18 +133,23 @@ class PoseEKF(ExtendedKalmanFilter):
         by the caller (see ``PoseTracker``).
         """
         r = np.asarray(r, dtype=float)
-        h = (_FULL_BASIS if basis is None else basis).T
-        d = np.asarray(z, dtype=float) - self.x
-        d[2] = wrap_scalar(d[2])
-        y = h @ d
+        if basis is None:  # H = I: Hx + y and H R Hᵀ are x + y and R, bit for bit
+            h = _FULL_BASIS
+            measured, y = _wrapped_measurement(np.asarray(z, dtype=float), self.x)
+        else:
+            h = basis.T
+            d = np.asarray(z, dtype=float) - self.x
+            d[2] = wrap_scalar(d[2])
+            y = h @ d
+            measured, r = h @ self.x + y, h @ r @ h.T
         prior_x, prior_p = self.x, self.P  # filterpy assigns new arrays: these stay the prior
         try:
             # Hand filterpy the measurement H x + y, so its plain subtraction z - Hx yields the
             # wrapped residual y (a measured angle near +π against a state near -π moves the
             # short way); then K = P Hᵀ S⁻¹, x = x + K y, P = (I-KH) P (I-KH)ᵀ + K R Kᵀ
             # (Joseph form).
-            super().update(h @ self.x + y, _constant_jacobian, _project, R=h @ r @ h.T,
-                           args=(h,), hx_args=(h,))
+            super().update(measured, _constant_jacobian, _project, R=r, args=(h,),
+                           hx_args=(h,))
         except np.linalg.LinAlgError:
             self.x, self.P = prior_x, prior_p
             return UpdateOutcome(False, 0.0, 0, status=ScanStatus.INVALID)

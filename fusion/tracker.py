@@ -47,6 +47,7 @@ from fusion.motion import (
 )
 from fusion.status import ScanStatus
 from houghloc.geometry import wrap_angle
+from houghloc.jit import njit
 
 if TYPE_CHECKING:  # the config module imports the filter's pieces, not the other way round
     from fusion.config import FilterConfig
@@ -55,7 +56,6 @@ log = logging.getLogger(__name__)
 
 _ZERO3 = np.zeros(3)
 _ZERO33 = np.zeros((3, 3))
-_EYES = {k: np.eye(k) for k in (1, 2, 3)}
 _TRIM_BATCH = 8  # nodes added between two trims
 
 
@@ -545,8 +545,7 @@ class PoseTracker:
     ) -> _Measurement | None:
         z = np.array(z, dtype=float).reshape(3)
         r = np.array(r, dtype=float).reshape(3, 3)
-        if not (math.isfinite(t) and all(map(math.isfinite, z.tolist()))
-                and np.isfinite(r).all()):
+        if not (math.isfinite(t) and _all_finite(z, r)):
             self._invalid(f"non-finite pose measurement at t={t}")
             return None
         if basis is not None:
@@ -556,9 +555,38 @@ class PoseTracker:
             k = basis.shape[1] if basis.ndim == 2 else 0
             if basis.shape[0] != 3 or not 1 <= k <= 3:
                 raise ValueError(f"basis must be 3×k with k in 1..3, got shape {basis.shape}")
-            if abs(basis.T @ basis - _EYES[k]).max() > 1e-6:
+            if not np.isfinite(basis).all():
+                self._invalid(f"non-finite basis of a pose measurement at t={t}")
+                return None
+            if not _orthonormal(basis, 1e-6):
                 raise ValueError("basis columns must be orthonormal")
         return _Measurement(z, r, basis)
+
+
+@njit
+def _all_finite(z: NDArray[np.float64], r: NDArray[np.float64]) -> bool:
+    """Are the measured pose and its covariance finite (one compiled pass, no temporaries)?"""
+    for i in range(3):
+        if not math.isfinite(z[i]):
+            return False
+        for j in range(3):
+            if not math.isfinite(r[i, j]):
+                return False
+    return True
+
+
+@njit
+def _orthonormal(basis: NDArray[np.float64], tolerance: float) -> bool:
+    """Is each entry of BᵀB within ``tolerance`` of the identity's? (B is finite.)"""
+    k = basis.shape[1]
+    for a in range(k):
+        for b in range(k):
+            dot = 0.0
+            for i in range(basis.shape[0]):
+                dot += basis[i, a] * basis[i, b]
+            if not abs(dot - (1.0 if a == b else 0.0)) <= tolerance:
+                return False
+    return True
 
 
 def _checked_state(

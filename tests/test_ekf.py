@@ -429,9 +429,12 @@ def test_backwards_duplicate_and_non_finite_inputs():
     bad = [
         tracker.apply(t, [math.nan, 0, 0], R_SMALL),
         tracker.apply(t, pose, np.full((3, 3), math.inf)),
+        tracker.apply(t, pose, R_SMALL, np.array([[math.nan], [0.0], [1.0]])),
     ]
     assert all(o.status == "invalid" for o in bad)
-    assert tracker.counts.invalid == 3
+    assert tracker.counts.invalid == 4
+    with pytest.raises(ValueError, match="orthonormal"):
+        tracker.apply(t, pose, R_SMALL, np.array([[1.0, 0.5], [0.0, 1.0], [0.0, 0.0]]))
     np.testing.assert_array_equal(tracker.pose, pose)
 
 
