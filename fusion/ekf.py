@@ -117,7 +117,7 @@ class PoseEKF(ExtendedKalmanFilter):
         self.F = f
         self.Q = g @ q_delta @ g.T
         self.predict(u=delta)
-        self.P = 0.5 * (self.P + self.P.T)
+        self.P = _symmetrized(self.P)
 
     def update_pose(
         self, z: ArrayLike, r: ArrayLike, basis: NDArray[np.float64] | None = None

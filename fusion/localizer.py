@@ -33,7 +33,7 @@ from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
 from fusion.visualize import Logger, NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
-from houghloc.geometry import ranges_to_points, transform_points
+from houghloc.geometry import ranges_to_points, transform_points, within_range
 from houghloc.jit import warm_up
 from houghloc.localize import clean_points
 
@@ -289,7 +289,7 @@ class Localizer:
         points = clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0]
         # a point beyond the sensor's range is no measurement of it (and 1e300 would overflow
         # every stage after): the same rule as for a scan's ranges
-        points = _to_base(points[np.hypot(points[:, 0], points[:, 1]) < cfg.max_range], cfg)
+        points = _to_base(within_range(points, cfg.max_range), cfg)
         if self.scan_odometry is not None and sensor == self._scan_odometry_sensor:
             self._correct_odometry(t, points)
         if self.manager.state is not State.TRACKING:

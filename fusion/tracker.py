@@ -221,7 +221,7 @@ class PoseTracker:
         # that ends the stall happened over the stall too (up to ``max_stall``)
         stalled = min(max(lo.t - self._reading_since, 0.0), self.motion.config.max_stall)
         jump = self.motion.is_jump(total, dt + stalled)
-        if not np.array_equal(odom, lo.odom):
+        if odom.tolist() != lo.odom.tolist():  # np.array_equal, without its overhead
             self._reading_since = t
         self.counts.predictions += 1
         self.counts.odometry_jumps += int(jump)

@@ -156,6 +156,24 @@ def _beams_to_points(r: NDArray[np.float64], a: NDArray[np.float64], max_range: 
     return out[:n]
 
 
+def within_range(points: NDArray[np.float64], max_range: float) -> NDArray[np.float64]:
+    """The points (N×2, finite) nearer than ``max_range`` to the origin: ``points`` itself when
+    all are (the usual case), else a copy of those that are."""
+    keep = _nearer_than(points, float(max_range))
+    return points if keep is None else points[keep]
+
+
+@njit
+def _nearer_than(points: NDArray[np.float64], max_range: float) -> NDArray[np.bool_] | None:
+    """None when every point's ``hypot`` is below ``max_range``, else which ones are."""
+    keep = np.empty(points.shape[0], np.bool_)
+    every = True
+    for i in range(points.shape[0]):
+        keep[i] = math.hypot(points[i, 0], points[i, 1]) < max_range
+        every = every and keep[i]
+    return None if every else keep
+
+
 @njit
 def inverse_3x3(m: NDArray[np.float64]) -> NDArray[np.float64]:
     """Inverse of a 3×3 matrix by its adjugate (cofactors over the determinant).
