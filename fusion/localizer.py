@@ -31,6 +31,7 @@ from fusion.scan_odometry import ScanOdometry
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
 from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
+from fusion.tracker import warm_up as warm_up_filter
 from fusion.visualize import Logger, NullLogger
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points, within_range
@@ -127,6 +128,7 @@ class Localizer:
         self.config = config or LocalizerConfig()
         self.logger = logger or NullLogger()
         warm_up()  # the compiled kernels, before the first scan rather than on it
+        warm_up_filter()
         fc = self.config.filter
         if initial_pose is None:
             initial_pose = self.config.initial_pose

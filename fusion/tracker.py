@@ -558,7 +558,7 @@ class PoseTracker:
             if not np.isfinite(basis).all():
                 self._invalid(f"non-finite basis of a pose measurement at t={t}")
                 return None
-            if not _orthonormal(basis, 1e-6):
+            if not _orthonormal(np.ascontiguousarray(basis), 1e-6):
                 raise ValueError("basis columns must be orthonormal")
         return _Measurement(z, r, basis)
 
@@ -600,3 +600,14 @@ def _checked_state(
         raise ValueError("initial covariance must be symmetric positive semi-definite")
     x[2] = wrap_angle(x[2])
     return x, 0.5 * (p + p.T)
+
+
+def warm_up() -> None:
+    """Compile the filter's kernels, or load them from the cache, before the first scan: a
+    tracker is driven a step and given a full and a partial pose measurement."""
+    tracker = PoseTracker(np.zeros(3), np.diag([0.01, 0.01, 0.001]))
+    tracker.on_odometry(0.0, 0.0, 0.0, 0.0)
+    tracker.on_odometry(0.1, 0.1, 0.0, 0.01)
+    measured = np.array([0.11, 0.01, 0.012])
+    tracker.apply(0.1, measured, np.diag([1e-4, 1e-4, 1e-5]))
+    tracker.apply(0.1, measured, np.diag([1e-4, 1e-4, 1e-5]), np.eye(3)[:, 1:])

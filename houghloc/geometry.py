@@ -159,7 +159,7 @@ def _beams_to_points(r: NDArray[np.float64], a: NDArray[np.float64], max_range: 
 def within_range(points: NDArray[np.float64], max_range: float) -> NDArray[np.float64]:
     """The points (N×2, finite) nearer than ``max_range`` to the origin: ``points`` itself when
     all are (the usual case), else a copy of those that are."""
-    keep = _nearer_than(points, float(max_range))
+    keep = _nearer_than(np.ascontiguousarray(points, dtype=float), float(max_range))
     return points if keep is None else points[keep]
 
 

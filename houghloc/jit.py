@@ -107,7 +107,12 @@ def warm_up() -> float:
     import numpy as np
 
     from houghloc.config import HoughConfig
-    from houghloc.geometry import positive_definite, ranges_to_points, ray_segment_distances
+    from houghloc.geometry import (
+        positive_definite,
+        ranges_to_points,
+        ray_segment_distances,
+        within_range,
+    )
     from houghloc.global_match import global_match
     from houghloc.localize import localize_scan, observe_lines
     from houghloc.map_lookup import wall_cells, wall_distance
@@ -151,6 +156,7 @@ def warm_up() -> float:
     global_match(view_lines, view, corridor, near=Neighbourhood(np.array([5.0, 1.0, 0.0]), 1.0,
                                                                  0.3))
     positive_definite(np.eye(3))
+    within_range(points, 3.0)
     walls = wall_distance(room, ("wall",), 0.05)
     for smooth in (False, True):
         walls.at(pose[None, :], points[:, 0], points[:, 1], smooth)

@@ -9,7 +9,6 @@ This is where a scan becomes a pose. Everything here is a pure function of its a
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -150,7 +149,6 @@ def observe_lines(points: NDArray[np.float64], config: HoughConfig
 
 
 _NO_WEIGHTS = np.empty(0)
-_LARGEST_FLOAT = sys.float_info.max
 
 
 def _observe_args(config: HoughConfig) -> tuple[tuple, tuple]:
@@ -247,7 +245,7 @@ def localize_scan(
         prior = _default_prior(config.guess_sigma_xy, config.guess_sigma_theta)
     else:
         prior = np.asarray(pose_cov, dtype=float)
-        if prior.shape != (3, 3) or not _all_usable(prior, _LARGEST_FLOAT):  # finite
+        if prior.shape != (3, 3) or not np.isfinite(prior).all():
             raise ValueError("pose_cov must be a finite 3×3 matrix")
     base = np.zeros(3)  # the matches' residuals are relative to guess + base
     matches, disp = match_and_solve(lines, refs, guess, prior, config)

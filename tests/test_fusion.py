@@ -438,6 +438,7 @@ sys.path.insert(0, {repo!r})
 from numba.core.registry import CPUDispatcher
 import fusion, houghloc
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
+from fusion.tracker import warm_up as warm_up_filter
 from houghloc.jit import warm_up
 kernels = {{}}
 for package in (houghloc, fusion):
@@ -448,6 +449,7 @@ for package in (houghloc, fusion):
             if isinstance(value, CPUDispatcher):
                 kernels[value.py_func.__module__ + "." + name] = value
 warm_up()
+warm_up_filter()
 warm_up_scan_matching()
 before = {{name: len(kernel.signatures) for name, kernel in kernels.items()}}
 {stream}
