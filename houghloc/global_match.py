@@ -138,7 +138,7 @@ def prepare_map(map: SegmentMap, config: GlobalMatchConfig = _DEFAULT_CONFIG,
     line pairs, the distance transform of its walls and where its lines' segments lie; a match
     then starts at once."""
     kinds = tuple(kinds)
-    if np.isin(map.kinds, kinds).any():
+    if map.kind_mask(kinds).any():
         _pair_index(map, kinds, config)
         wall_distance(map, kinds, config.dt_cell)
         segment_spans(map, kinds, config.inlier_distance)
@@ -171,7 +171,7 @@ def global_match_stages(
     finite = np.isfinite(pts).all(axis=1)
     if not finite.any():
         return GlobalResult(reason="no points")
-    if not np.isin(map.kinds, kinds).any():
+    if not map.kind_mask(kinds).any():
         return GlobalResult(reason=f"the map has no segment of kinds {kinds}")
     if lines is None or len(lines) == 0:
         return GlobalResult(reason="no observed lines")

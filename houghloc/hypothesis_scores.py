@@ -209,7 +209,7 @@ def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[
     one passes them. Only walls occlude; painted lines do not.
     """
     near = map.segments_near(pose[:2], max_range)
-    near = near[np.isin(map.kinds[near], kinds) & map.is_wall[near]]
+    near = near[map.kind_mask(kinds)[near] & map.is_wall[near]]
     if len(near) == 0 or len(points) == 0:
         return np.ones(len(points), dtype=bool)
     heading = np.array([pose[2]])  # NumPy's cos and sin, as every other placement of points

@@ -222,7 +222,7 @@ def _cached(map: SegmentMap, key: tuple, build):
 
 def map_lines_of_kinds(map: SegmentMap, kinds: tuple[str, ...]) -> NDArray[np.intp]:
     """Canonical lines with at least one segment of the given kinds."""
-    segs = np.isin(map.kinds, kinds)
+    segs = map.kind_mask(kinds)
     return np.unique(map.line_of_segment[segs])
 
 
@@ -276,7 +276,7 @@ def wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
 
 def _build_wall_distance(map: SegmentMap, kinds: tuple[str, ...], cell: float,
                          margin: float) -> WallDistance:
-    segs = np.flatnonzero(np.isin(map.kinds, kinds))
+    segs = np.flatnonzero(map.kind_mask(kinds))
     ends = np.concatenate((map.starts[segs], map.ends[segs]))
     origin = ends.min(axis=0) - margin
     w, h = np.ceil((ends.max(axis=0) + margin - origin) / cell).astype(int) + 1
@@ -333,7 +333,7 @@ class SegmentSpans:
 
     def __init__(self, map: SegmentMap, mlines: NDArray[np.intp], kinds: tuple[str, ...],
                  margin: float) -> None:
-        segs = np.flatnonzero(np.isin(map.kinds, kinds))
+        segs = np.flatnonzero(map.kind_mask(kinds))
         row = np.searchsorted(mlines, map.line_of_segment[segs])
         s0, s1 = map.seg_s0[segs] - margin, map.seg_s1[segs] + margin
         n = len(mlines)
@@ -365,7 +365,7 @@ def segment_spans(map: SegmentMap, kinds: tuple[str, ...], margin: float) -> Seg
 
 def map_bbox(map: SegmentMap, kinds: tuple[str, ...]) -> tuple[NDArray, NDArray]:
     """The lower and upper corners of the box around the map's segments of ``kinds``."""
-    segs = np.isin(map.kinds, kinds)
+    segs = map.kind_mask(kinds)
     ends = np.concatenate((map.starts[segs], map.ends[segs]))
     return ends.min(axis=0), ends.max(axis=0)
 

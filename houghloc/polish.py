@@ -83,7 +83,7 @@ def build_wall_cells(map: SegmentMap, kinds: tuple[str, ...], gate: float) -> Wa
     """Each segment is sampled every half cell; a point within ``gate`` of it is within
     gate + cell/4 of a sample, hence at most two cells from the sample's cell in each axis, so
     the 5 × 5 cells around every sample list it."""
-    segs = np.flatnonzero(np.isin(map.kinds, kinds))
+    segs = np.flatnonzero(map.kind_mask(kinds))
     starts, ends = map.starts[segs], map.ends[segs]
     cell = float(gate)
     reach = math.ceil((gate + 0.25 * cell) / cell)

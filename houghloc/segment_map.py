@@ -308,7 +308,7 @@ class SegmentMap:
         if hit is not None:
             return _unpack_visible(hit)
         packed, clearance = _visible_packed(
-            self.starts, self.ends, self._samples, self._first_sample, self._kind_mask(kinds),
+            self.starts, self.ends, self._samples, self._first_sample, self.kind_mask(kinds),
             self.is_wall, self.line_of_segment, _ray_directions(n_rays), origin[0], origin[1],
             max_range + self._index_spacing, max_range)
         if clearance > 1.5 * cell:
@@ -317,11 +317,13 @@ class SegmentMap:
             self._visibility_cache[key] = packed
         return _unpack_visible(packed)
 
-    def _kind_mask(self, kinds: tuple[str, ...]) -> NDArray[np.bool_]:
-        """Which segments are of one of ``kinds`` (computed once per tuple of kinds)."""
-        mask = self._kind_masks.get(kinds)
+    def kind_mask(self, kinds: Sequence[str]) -> NDArray[np.bool_]:
+        """Which segments are of one of ``kinds`` (read-only; computed once per set of kinds)."""
+        key = tuple(kinds)
+        mask = self._kind_masks.get(key)
         if mask is None:
-            mask = self._kind_masks[kinds] = np.isin(self.kinds, kinds)
+            mask = self._kind_masks[key] = np.isin(self.kinds, key)
+            mask.flags.writeable = False
         return mask
 
 

@@ -165,7 +165,7 @@ def random_free_pose(m: SegmentMap, rng: np.random.Generator, clearance: float =
     Painted lines are not obstacles, so by default a pose may lie on one; pass
     ``kinds=("wall", "line")`` to keep away from them too.
     """
-    keep = np.isin(m.kinds, kinds)
+    keep = m.kind_mask(kinds)
     fs = free_space(m)
     xy = fs.sample(rng, m.starts[keep], m.ends[keep], clearance)
     return np.array([xy[0], xy[1], rng.uniform(-np.pi, np.pi)])
