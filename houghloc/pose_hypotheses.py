@@ -109,7 +109,9 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
     observed pair p: θ = β − θ_obs from either line, their circular mean; (x, y) = N⁻¹ (r − ρ);
     kept when inside the box (and the neighbourhood). With a neighbourhood, a pose whose
     heading is outside it is left out before its position is solved (θ is within half the
-    angle window of θ_a: a first cut on θ_a alone, then the exact one on θ)."""
+    angle window of θ_a: a first cut on θ_a alone, then the exact one on θ), and so is one whose
+    line a puts it too far from the centre (the position lies on that line's hypothesis
+    x cos β_a + y sin β_a = r_a − ρ_i, at least as far from the centre as the line is)."""
     # with a neighbourhood a few percent of the candidates are kept: the array grows as needed
     # rather than holding them all (megabytes, each page touched for the first time)
     out = np.empty((min(counts.sum(), 4096) if use_near else counts.sum(), 3))
@@ -119,6 +121,10 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
     # on θ below decides.
     reach = near_radius + tol_max + 1e-6
     bound = math.cos(reach) if reach < np.pi else -2.0
+    # The position's cut: the line's distance from the centre, |r_a − ρ_i − (c_x cos β_a +
+    # c_y sin β_a)|, is at most the position's. The solve below meets line a to rounding
+    # (10⁻¹³ m on a building), so a micrometre's margin keeps a superset here too.
+    gap = math.sqrt(near_xy_sq) + 1e-6
     # the cut is a pass over the window that only lists the survivors (no branch to mispredict
     # on every candidate); they are solved after it, in the window's order
     passed = np.empty(counts.max() if use_near and len(counts) else 0, np.intp)
@@ -128,21 +134,28 @@ def _pair_poses(theta: NDArray, rho: NDArray, pair_i: NDArray, pair_k: NDArray, 
         m = counts[p]
         if use_near:
             cos_c, sin_c = math.cos(theta[i] + near_theta), math.sin(theta[i] + near_theta)
+            rho_i = rho[i]
             m = 0
             for e in range(lo[p], lo[p] + counts[p]):
                 passed[m] = e
-                m += cos_a[e] * cos_c + sin_a[e] * sin_c >= bound
+                off_line = r_a[e] - rho_i - (near_x * cos_a[e] + near_y * sin_a[e])
+                m += (cos_a[e] * cos_c + sin_a[e] * sin_c >= bound) & (abs(off_line) <= gap)
         for q in range(m):
             e = passed[q] if use_near else lo[p] + q
-            th_a = beta_a[e] - theta[i]
-            th_b = beta_b[e] - theta[k]
-            half = 0.5 * (mod_two_pi(th_b - th_a + np.pi) - np.pi)
-            th = mod_two_pi(th_a + half + np.pi) - np.pi
             rhs_a, rhs_b = r_a[e] - rho[i], r_b[e] - rho[k]
             x = n_inv[e, 0, 0] * rhs_a + n_inv[e, 0, 1] * rhs_b
             y = n_inv[e, 1, 0] * rhs_a + n_inv[e, 1, 1] * rhs_b
             if not (box_x0 <= x <= box_x1 and box_y0 <= y <= box_y1):
                 continue
+            # the position is tested before the heading is solved: of a local search's
+            # candidates, most of those with a heading near its centre lie elsewhere
+            dx, dy = x - near_x, y - near_y  # in_neighbourhood's own test, which decides
+            if use_near and not dx * dx + dy * dy <= near_xy_sq:
+                continue
+            th_a = beta_a[e] - theta[i]
+            th_b = beta_b[e] - theta[k]
+            half = 0.5 * (mod_two_pi(th_b - th_a + np.pi) - np.pi)
+            th = mod_two_pi(th_a + half + np.pi) - np.pi
             if use_near and not in_neighbourhood(x, y, th, near_x, near_y, near_theta,
                                                  near_xy_sq, near_radius):
                 continue
