@@ -6,6 +6,7 @@ pose space.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,7 +32,7 @@ def observed_pairs(lines: Lines, config: GlobalMatchConfig
     already gives the pose and every pair multiplies the hypotheses.
     """
     strong = np.argsort(-lines.n, kind="stable")[: config.max_observed_lines]
-    i, k = np.triu_indices(len(strong), 1)
+    i, k = _pairs_of(len(strong))
     i, k = strong[i], strong[k]
     sin_d = np.abs(np.sin(lines.theta[k] - lines.theta[i]))
     ok = sin_d >= math.sin(config.min_pair_angle)
@@ -40,6 +41,15 @@ def observed_pairs(lines: Lines, config: GlobalMatchConfig
     quality = length[i] * length[k] * sin_d
     order = np.argsort(-quality, kind="stable")[: config.max_observed_pairs]
     return i[order], k[order]
+
+
+@lru_cache(maxsize=64)
+def _pairs_of(n: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """``np.triu_indices(n, 1)``, read-only, built once per n (a dozen lines at most: building
+    them cost more than the rest of choosing the pairs)."""
+    i, k = np.triu_indices(n, 1)
+    i.flags.writeable = k.flags.writeable = False
+    return i, k
 
 
 def pair_hypotheses(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
