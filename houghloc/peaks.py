@@ -59,10 +59,7 @@ def _peaks_kernel(acc: NDArray[np.integer], threshold: int, w: int, h: int, limi
     while hi >= lo and column_top[hi] < threshold:
         hi -= 1
     for i in range(n_theta if lo <= hi else 0):
-        top = acc[i, lo]  # most rows hold no cell above the threshold: one vectorised pass
-        for j in range(lo + 1, hi + 1):
-            top = max(top, acc[i, j])
-        if top < threshold:
+        if acc[i, lo:hi + 1].max() < threshold:  # a row without a candidate: one vectorised pass
             continue
         for j in range(lo, hi + 1):
             v = acc[i, j]

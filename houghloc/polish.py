@@ -76,7 +76,7 @@ class WallCells:
         """The cells as :func:`_polish_kernel` takes them (built once)."""
         return (float(self.origin[0]), float(self.origin[1]), 1.0 / self.cell, self.width,
                 self.height, self.first, self.candidates, self.starts, self.ends, self.normal,
-                self.line)
+                self.line, int(self.line.max()) + 1 if len(self.line) else 0)
 
 
 def build_wall_cells(map: SegmentMap, kinds: tuple[str, ...], gate: float) -> WallCells:
@@ -241,12 +241,13 @@ _SUMS = 21
 def _normal_equations(points: NDArray, w: NDArray, unit: bool, pose: NDArray, paired: NDArray,
                       starts: NDArray, normal: NDArray, line: NDArray, rho_floor_sq: float,
                       theta_floor_sq: float, sigma_floor_sq: float, min_points: int,
-                      keys: NDArray, counts: NDArray, sums: NDArray, H: NDArray,
+                      slot: NDArray, keys: NDArray, counts: NDArray, sums: NDArray, H: NDArray,
                       g: NDArray) -> int:
     """H = Σ_g Jᵀ Σ_g⁻¹ J and g = Σ_g Jᵀ Σ_g⁻¹ r over the map lines with ``min_points`` paired
     points (module docstring), into ``H`` and ``g``; returns how many lines there were. One pass
-    over the points adds each one's terms to its line's sums (a scan sees tens of lines: found
-    by a linear search). ``keys``, ``counts`` and ``sums`` are work space of a row per point."""
+    over the points adds each one's terms to its line's sums, in the order the lines are first met
+    (``slot``: each map line's row of the sums, −1 for none; all −1 on entry and on return).
+    ``keys``, ``counts`` and ``sums`` are work space of a row per point."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     n_keys = 0
     for i in range(points.shape[0]):
@@ -254,10 +255,10 @@ def _normal_equations(points: NDArray, w: NDArray, unit: bool, pose: NDArray, pa
         if j < 0:
             continue
         key = line[j]
-        u = 0
-        while u < n_keys and keys[u] != key:
-            u += 1
-        if u == n_keys:
+        u = slot[key]
+        if u < 0:
+            u = n_keys
+            slot[key] = u
             keys[u] = key
             counts[u] = 0
             sums[u, :] = 0.0
@@ -292,6 +293,7 @@ def _normal_equations(points: NDArray, w: NDArray, unit: bool, pose: NDArray, pa
     g[:] = 0.0
     groups = 0
     for u in range(n_keys):
+        slot[keys[u]] = -1
         if counts[u] >= min_points:
             groups += 1
             _add_line(sums[u], rho_floor_sq, theta_floor_sq, sigma_floor_sq, H, g)
@@ -331,13 +333,14 @@ def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis
                    ox: float,
                    oy: float, inv_cell: float, width: int, height: int, first: NDArray,
                    candidates: NDArray, starts: NDArray, ends: NDArray, normal: NDArray,
-                   line: NDArray, gate: float, rho_floor_sq: float, theta_floor_sq: float,
-                   sigma_floor_sq: float, min_points: int) -> tuple:
+                   line: NDArray, n_lines: int, gate: float, rho_floor_sq: float,
+                   theta_floor_sq: float, sigma_floor_sq: float, min_points: int) -> tuple:
     """Gauss–Newton from ``pose`` in the span of ``basis``: (pose, BᵀHB at it, ok)."""
     k = basis.shape[1]
     reduced = np.zeros((k, k))
     n = points.shape[0]
     paired = np.empty(n, np.int64)
+    slot = np.full(n_lines, -1, np.int64)
     keys = np.empty(n, np.int64)
     counts = np.empty(n, np.int64)
     sums = np.empty((n, _SUMS))
@@ -348,7 +351,7 @@ def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis
               gate, paired)
         groups = _normal_equations(points, w, unit, pose, paired, starts, normal, line,
                                    rho_floor_sq, theta_floor_sq, sigma_floor_sq, min_points,
-                                   keys, counts, sums, H, g)
+                                   slot, keys, counts, sums, H, g)
         _project(basis, H, reduced)
         if groups < 2 or not _well_conditioned(reduced):
             return pose, reduced, False
