@@ -358,7 +358,8 @@ class Localizer:
         if not verdict.use:
             return self._use_points(t, fix, verdict, guess_cov, points, cfg)
         pose, cov = fix.pose, fix.cov
-        basis: NDArray | None = fix.observable
+        # a full fix measures the whole pose (H = I), whatever the order of its basis's columns
+        basis: NDArray | None = fix.observable if fix.rank < 3 else None
         along = self.corridor.complete(fix, guess_cov, points, cfg.hough)
         if along is not None:
             pose, cov, basis = along.pose, along.cov, None
