@@ -75,8 +75,24 @@ class WallCells:
     def kernel_args(self) -> tuple:
         """The cells as :func:`_polish_kernel` takes them (built once)."""
         return (float(self.origin[0]), float(self.origin[1]), 1.0 / self.cell, self.width,
-                self.height, self.first, self.candidates, self.starts, self.ends, self.normal,
-                self.line, int(self.line.max()) + 1 if len(self.line) else 0)
+                self.height, self.first, self.candidates,
+                _candidate_rows(self.candidates, self.starts, self.ends), self.starts,
+                self.normal, self.line, int(self.line.max()) + 1 if len(self.line) else 0)
+
+
+@njit
+def _candidate_rows(candidates: NDArray, starts: NDArray, ends: NDArray) -> NDArray:
+    """Per entry of ``candidates``, its segment's start a, direction e = end − a and
+    max(|e|², 10⁻³⁰⁰), in the candidates' order: :func:`_pair` reads a cell's segments as one
+    run of memory."""
+    rows = np.empty((len(candidates), 5))
+    for k in range(len(candidates)):
+        j = candidates[k]
+        ax, ay = starts[j, 0], starts[j, 1]
+        ex, ey = ends[j, 0] - ax, ends[j, 1] - ay
+        rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3] = ax, ay, ex, ey
+        rows[k, 4] = max(ex * ex + ey * ey, 1e-300)
+    return rows
 
 
 def build_wall_cells(map: SegmentMap, kinds: tuple[str, ...], gate: float) -> WallCells:
@@ -206,9 +222,10 @@ def _expand(basis: NDArray, m: NDArray) -> NDArray:
 
 @njit
 def _pair(points: NDArray, pose: NDArray, ox: float, oy: float, inv_cell: float, width: int,
-          height: int, first: NDArray, candidates: NDArray, starts: NDArray, ends: NDArray,
-          gate: float, out: NDArray) -> None:
-    """Each point's nearest segment within ``gate`` at ``pose`` (−1: none), into ``out``."""
+          height: int, first: NDArray, candidates: NDArray, rows: NDArray, gate: float,
+          out: NDArray) -> None:
+    """Each point's nearest segment within ``gate`` at ``pose`` (−1: none), into ``out``
+    (``rows``: :func:`_candidate_rows`)."""
     c, s = math.cos(pose[2]), math.sin(pose[2])
     gate_sq = gate * gate
     for i in range(points.shape[0]):
@@ -221,16 +238,14 @@ def _pair(points: NDArray, pose: NDArray, ox: float, oy: float, inv_cell: float,
         cell = int(fy) * width + int(fx)
         best = gate_sq
         for k in range(first[cell], first[cell + 1]):
-            j = candidates[k]
-            ax, ay = starts[j, 0], starts[j, 1]
-            ex, ey = ends[j, 0] - ax, ends[j, 1] - ay
-            along = ((wx - ax) * ex + (wy - ay) * ey) / max(ex * ex + ey * ey, 1e-300)
+            ax, ay, ex, ey = rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3]
+            along = ((wx - ax) * ex + (wy - ay) * ey) / rows[k, 4]
             along = min(max(along, 0.0), 1.0)
             dx, dy = wx - ax - along * ex, wy - ay - along * ey
             d_sq = dx * dx + dy * dy
             if d_sq <= best:
                 best = d_sq
-                out[i] = j
+                out[i] = candidates[k]
 
 
 _SUMS = 21
@@ -332,7 +347,7 @@ def _add_line(row: NDArray, rho_floor_sq: float, theta_floor_sq: float, sigma_fl
 def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis: NDArray,
                    ox: float,
                    oy: float, inv_cell: float, width: int, height: int, first: NDArray,
-                   candidates: NDArray, starts: NDArray, ends: NDArray, normal: NDArray,
+                   candidates: NDArray, rows: NDArray, starts: NDArray, normal: NDArray,
                    line: NDArray, n_lines: int, gate: float, rho_floor_sq: float,
                    theta_floor_sq: float, sigma_floor_sq: float, min_points: int) -> tuple:
     """Gauss–Newton from ``pose`` in the span of ``basis``: (pose, BᵀHB at it, ok)."""
@@ -347,8 +362,8 @@ def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis
     H = np.empty((3, 3))
     g = np.empty(3)
     for step in range(MAX_STEPS + 1):
-        _pair(points, pose, ox, oy, inv_cell, width, height, first, candidates, starts, ends,
-              gate, paired)
+        _pair(points, pose, ox, oy, inv_cell, width, height, first, candidates, rows, gate,
+              paired)
         groups = _normal_equations(points, w, unit, pose, paired, starts, normal, line,
                                    rho_floor_sq, theta_floor_sq, sigma_floor_sq, min_points,
                                    slot, keys, counts, sums, H, g)

@@ -17,6 +17,7 @@ from houghloc.geometry import ranges_to_points, wrap_angle
 from houghloc.map_lookup import wall_cells
 from houghloc.polish import (
     MIN_CONDITION,
+    _candidate_rows,
     _pair,
     _solve_spd,
     _well_conditioned,
@@ -127,7 +128,8 @@ def test_each_point_pairs_with_its_nearest_wall_within_the_gate(seed, gate) -> N
     points = rng.uniform(-7, 7, (400, 2))
     paired = np.empty(len(points), np.int64)
     _pair(points, np.zeros(3), cells.origin[0], cells.origin[1], 1.0 / cells.cell, cells.width,
-          cells.height, cells.first, cells.candidates, cells.starts, cells.ends, gate, paired)
+          cells.height, cells.first, cells.candidates,
+          _candidate_rows(cells.candidates, cells.starts, cells.ends), gate, paired)
     ab = cells.ends - cells.starts
     t = np.clip(np.einsum("pkj,kj->pk", points[:, None] - cells.starts, ab)
                 / np.einsum("kj,kj->k", ab, ab), 0.0, 1.0)
