@@ -31,13 +31,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.ambiguity.fit import ScanFit
+from fusion.bench.methods import base_points, laser
 from fusion.bench.task import LOST_HEADING_DEG, LOST_POSITION
 from fusion.config import LocalizerConfig
 from fusion.evaluation.trajectory import Trajectory, associate
 from fusion.events import Event, Odometry, Scan
 from fusion.motion import interpolate
 from fusion.scan_icp import point_to_line_icp
-from houghloc.geometry import ranges_to_points, relative, transform_points, wrap_scalar
+from houghloc.geometry import relative, wrap_scalar
 from houghloc.segment_map import SegmentMap
 
 
@@ -99,16 +100,6 @@ def wheels_at(wheels: Trajectory, t: float) -> NDArray[np.float64] | None:
     return interpolate(wheels.poses[k - 1], wheels.poses[k], (t - t0) / (t1 - t0))
 
 
-def scan_points(scan: Scan, config: LocalizerConfig, sensor: str = "laser") -> NDArray[np.float64]:
-    """The scan's returns in the robot frame, as the localizer sees them."""
-    cfg = config.sensors[sensor]
-    points = ranges_to_points(scan.ranges, scan.angles, min(cfg.max_range, scan.max_range),
-                              cfg.min_range)
-    if cfg.mount == (0.0, 0.0, 0.0) or len(points) == 0:
-        return points
-    return transform_points(np.asarray(cfg.mount), points)
-
-
 def lost_poses(scans: Sequence[Scan], estimate: Trajectory, reference: Trajectory,
                wheels: Trajectory, segment_map: SegmentMap,
                config: LocalizerConfig | None = None, max_dt: float = 0.006) -> list[LostPose]:
@@ -121,7 +112,7 @@ def lost_poses(scans: Sequence[Scan], estimate: Trajectory, reference: Trajector
     if len(estimate) != len(scans):
         raise ValueError(f"{len(estimate)} estimated poses for {len(scans)} scans")
     fit = ScanFit(segment_map, config.ambiguity)
-    kinds = config.sensors["laser"].hough.reference_kinds
+    kinds = laser(config).hough.reference_kinds
     pairs = associate(estimate.t, reference.t, max_dt)
     out: list[LostPose] = []
     previous: _Judged | None = None
@@ -131,7 +122,7 @@ def lost_poses(scans: Sequence[Scan], estimate: Trajectory, reference: Trajector
         dxy = math.hypot(*(pose[:2] - ref[:2]))
         dth = math.degrees(wrap_scalar(pose[2] - ref[2]))
         if dxy > LOST_POSITION or abs(dth) > LOST_HEADING_DEG:
-            points = scan_points(scan, config)
+            points = base_points(scan, laser(config))
             on_ref, on_est = fit.fractions(np.stack([ref, pose]), points, kinds)
             steps = _steps(previous, judged, points, wheels, config)
             out.append(LostPose(float(estimate.t[i]), dxy, dth, *steps, float(on_ref),
@@ -162,7 +153,7 @@ def _steps(previous: _Judged | None, current: _Judged, points: NDArray[np.float6
     if w0 is None or w1 is None:
         return reference, estimated, None, None, math.nan
     wheel = relative(w0, w1)
-    match = point_to_line_icp(scan_points(previous.scan, config), points, wheel,
+    match = point_to_line_icp(base_points(previous.scan, laser(config)), points, wheel,
                               config.scan_odometry)
     if match is None:
         return reference, estimated, Step(wheel), None, math.nan

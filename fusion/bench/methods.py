@@ -62,11 +62,14 @@ def supports(method: Method, global_start: bool) -> bool:
     return not global_start or method not in (Method.ODOMETRY, Method.ICP)
 
 
-def _laser(config: LocalizerConfig) -> SensorConfig:
+def laser(config: LocalizerConfig) -> SensorConfig:
+    """The configuration's laser (its first sensor when none is called so)."""
     return config.sensors.get("laser") or next(iter(config.sensors.values()))
 
 
-def _base_points(scan: Scan, sensor: SensorConfig) -> NDArray[np.float64]:
+def base_points(scan: Scan, sensor: SensorConfig) -> NDArray[np.float64]:
+    """The scan's returns in the robot frame, as the localizer sees them: beams beyond the
+    sensor's or the scan's range dropped, then moved by the sensor's mount."""
     pts = ranges_to_points(scan.ranges, scan.angles, min(sensor.max_range, scan.max_range),
                            sensor.min_range)
     return pts if sensor.mount == (0.0, 0.0, 0.0) else transform_points(sensor.mount, pts)
@@ -143,13 +146,13 @@ def _icp(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
         import small_gicp
     except ImportError:
         raise MissingPeer("icp needs small_gicp: pip install 'houghloc[peers]'") from None
-    sensor = _laser(config)
+    sensor = laser(config)
     target_xy = piece.map_source.points
     target = small_gicp.PointCloud(np.column_stack((target_xy, np.zeros(len(target_xy)))))
     tree = small_gicp.KdTree(target)
 
     def align(pose: NDArray[np.float64], scan: Scan) -> NDArray[np.float64]:
-        pts = _base_points(scan, sensor)
+        pts = base_points(scan, sensor)
         if len(pts) < 10:
             return pose
         source = small_gicp.PointCloud(np.column_stack((pts, np.zeros(len(pts)))))
@@ -199,7 +202,7 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
     except ImportError:
         raise MissingPeer("amcl needs the amcl wheel: pip install 'houghloc[peers]'") from None
     p = AMCL_TUNED if method is Method.AMCL_TUNED else AMCL_NAV2
-    sensor = _laser(config)
+    sensor = laser(config)
     filt = _make_amcl(amcl, p, piece, sensor)
     last_update_odom: NDArray[np.float64] | None = None
     at_update = np.zeros(3)
@@ -230,11 +233,11 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
 
 def _make_amcl(amcl: Any, p: dict[str, Any], piece: Piece, sensor: SensorConfig) -> Any:
     motion = amcl.MotionParameters(*p["alpha"])
-    laser = amcl.LaserParameters(p["z_hit"], p["z_short"], p["z_max"], p["z_rand"],
+    beams = amcl.LaserParameters(p["z_hit"], p["z_short"], p["z_max"], p["z_rand"],
                                  p["sigma_hit"], p["lambda_short"], p["chi_outlier"],
                                  p["max_beams"])
     filt = amcl.AMCL(p["min_particles"], p["max_particles"], p["alpha_slow"], p["alpha_fast"],
-                     motion, laser, "differential")
+                     motion, beams, "differential")
     grid = piece.map_source.grid
     rows, cols = grid.shape
     occ = amcl.OccupancyGrid(cols, rows, grid.resolution, grid.origin[0], grid.origin[1])
@@ -263,7 +266,7 @@ def _mrpt(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
     from fusion.bench.mrpt import MrptUnavailable, run_pf_localization
 
     try:
-        trajectory, cpu = run_pf_localization(piece, _laser(config))
+        trajectory, cpu = run_pf_localization(piece, laser(config))
     except MrptUnavailable as error:
         raise MissingPeer(str(error)) from None
     return Localized(trajectory, cpu)
