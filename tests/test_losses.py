@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from fusion.bench.losses import (
     LostPose,
@@ -18,9 +19,13 @@ from fusion.bench.losses import (
     markdown,
     wheels_at,
 )
+from fusion.bench.spec import load_spec
+from fusion.bench.sweep import run_sweep
+from fusion.cli import main as houghloc
 from fusion.config import LocalizerConfig
 from fusion.evaluation.trajectory import Trajectory
 from fusion.events import Scan
+from fusion.io.tum import read_tum, write_tum
 from fusion.sim import scenario_preset, simulate
 from houghloc.geometry import compose
 
@@ -122,3 +127,31 @@ def test_the_command_says_what_is_missing(tmp_path, capsys):
     (tmp_path / "office.yaml").touch()
     assert main(["--spec", str(spec), "--sweep", str(tmp_path)]) == 1
     assert "no finished houghloc task" in capsys.readouterr().err
+
+
+def test_a_sweeps_losses_are_read_task_by_task_with_each_tasks_settings(tmp_path, capsys):
+    """End to end: a simulated office localized by a sweep at two settings, scored against its
+    truth with one pose turned 8°: each task reports that one pose, under its settings."""
+    assert houghloc(["sim", "--scenario", "office-laser", "--out", str(tmp_path / "sim"),
+                     "--duration", "20"]) == 0
+    t, poses = read_tum(tmp_path / "sim" / "gt.tum")
+    k = len(t) // 2
+    poses[k, 2] += math.radians(8.0)
+    write_tum(tmp_path / "flicked.tum", t, poses)
+    spec = tmp_path / "spec.yaml"
+    spec.write_text(yaml.safe_dump({
+        "runs": [{"name": "office", "log": "sim", "map": "sim/map.yaml",
+                  "reference": "flicked.tum"}],
+        "methods": ["houghloc"], "protocols": ["same-run"],
+        "grid": {"filter.gate_probability": [0.999, 0.9999]}}))
+    outcome = run_sweep(load_spec(spec), tmp_path / "out", workers=2, progress=False)
+    assert outcome.failed == 0
+    capsys.readouterr()
+    assert main(["--spec", str(spec), "--sweep", str(tmp_path / "out")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    titles = [line for line in lines if line.startswith("## ")]
+    assert sorted(titles) == sorted([
+        '## office, same-run, {"filter.gate_probability":0.999}: 1 lost',
+        '## office, same-run, {"filter.gate_probability":0.9999}: 1 lost'])
+    rows = [line for line in lines if line.startswith(f"| {t[k] - t[0]:.2f}; {t[k]:.2f} |")]
+    assert len(rows) == 2

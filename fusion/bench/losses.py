@@ -16,11 +16,15 @@ own step is the odd one out points at the localizer. Nothing is decided here: th
 printed, and read by whoever judges the run.
 
     python -m fusion.bench.losses --spec benchmarks/real.yaml --sweep runs/bench-real
+
+Each task of the sweep is read with its own settings (a spec's ``grid``), which change the fit
+and the scan match as they changed the run.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 from collections.abc import Iterable, Sequence
@@ -187,7 +191,14 @@ def markdown(losses: Sequence[LostPose], t0: float) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     from fusion.bench.data import RunData
-    from fusion.bench.spec import Method, Protocol, SpecError, apply_settings, load_spec
+    from fusion.bench.spec import (
+        Method,
+        Protocol,
+        SpecError,
+        apply_settings,
+        load_spec,
+        settings_label,
+    )
     from fusion.bench.sweep import read_results
 
     parser = argparse.ArgumentParser(
@@ -213,20 +224,22 @@ def main(argv: list[str] | None = None) -> int:
         print(error, file=sys.stderr)
         return 2
     rows = [r for r in read_results(args.sweep) if r["method"] == args.method
-            and r["protocol"] in protocols and r["status"] == "ok" and not r["settings"].strip("{}")
+            and r["protocol"] in protocols and r["status"] == "ok"
             and (args.run is None or r["run"] in args.run)]
     if not rows:
-        print(f"{args.sweep}: no finished {args.method} task of {', '.join(protocols)} with the "
-              "defaults", file=sys.stderr)
+        print(f"{args.sweep}: no finished {args.method} task of {', '.join(protocols)}",
+              file=sys.stderr)
         return 1
     for run in spec.runs:
         mine = [r for r in rows if r["run"] == run.name]
         if not mine:
             continue
         data = RunData.load(run, spec.max_dt)
-        config = apply_settings(run.config, {})
-        for row in sorted(mine, key=lambda r: r["protocol"]):
+        for row in sorted(mine, key=lambda r: (r["protocol"], r["settings"])):
             protocol = Protocol(row["protocol"])
+            # each task is read with its own settings: they change the fit and the scan match
+            settings = json.loads(row["settings"] or "{}")
+            config = apply_settings(run.config, settings)
             estimate = Trajectory.from_tum(args.sweep / "trajectories" / f"{row['task_id']}.tum")
             found: list[LostPose] = []
             done = 0  # the trajectory holds each piece's poses in turn, one a scan
@@ -242,7 +255,10 @@ def main(argv: list[str] | None = None) -> int:
                     losses = after_first_right(losses, poses.t[judged.est_index].tolist())
                 found += losses
             first = min(s.t for s in data.events if isinstance(s, Scan))
-            title = f"## {run.name}, {protocol.value}: {len(found)} lost"
+            title = f"## {run.name}, {protocol.value}"
+            if settings:
+                title += f", {settings_label(settings)}"
+            title += f": {len(found)} lost"
             if protocol is Protocol.GLOBAL_START:
                 title += " after the estimate was first right"
             print(title + "\n")
