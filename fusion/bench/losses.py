@@ -4,9 +4,9 @@ A reference built by a SLAM system (the corrected logs' GMapping poses) has erro
 a pose scored lost may be the reference's error rather than the localizer's. Beside each lost
 pose this prints:
 
-* the step from the scan before, as the reference, the wheels and a scan-to-scan match see it
-  (:func:`fusion.scan_icp.point_to_line_icp` started at the wheels' step: it uses no map and no
-  reference);
+* the step from the scan before, as the reference, the estimate, the wheels and a scan-to-scan
+  match see it (:func:`fusion.scan_icp.point_to_line_icp` started at the wheels' step: it uses
+  no map and no reference);
 * the share of the scan's points on the map's walls at the reference pose and at the estimate
   (:meth:`fusion.ambiguity.fit.ScanFit.fractions`, the measure the localizer judges fixes by).
 
