@@ -12,8 +12,6 @@ import pytest
 import yaml
 
 from fusion.bench.losses import (
-    LostPose,
-    after_first_right,
     lost_poses,
     main,
     markdown,
@@ -107,15 +105,21 @@ def test_wheels_are_interpolated_between_readings_and_unknown_outside(office_run
                                atol=1e-3)
 
 
-def _loss(t: float) -> LostPose:
-    return LostPose(t, 1.0, 0.0, None, None, None, None, math.nan, 0.0, 0.0)
-
-
-def test_a_global_starts_losses_count_after_it_was_first_right():
-    losses = [_loss(t) for t in (0.0, 1.0, 2.0, 5.0, 6.0)]
-    kept = after_first_right(losses, [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0])
-    assert [p.t for p in kept] == [5.0, 6.0]
-    assert after_first_right(losses, [0.0, 1.0, 2.0]) == []  # never right
+def test_a_global_starts_losses_count_after_it_was_first_right(office_run):
+    run, scans, wheels, config = office_run
+    estimate = _truth(run)
+    off = np.array([0.5, 0.0, 0.0])
+    for k in (0, 1, 2, 40):  # the search for a first pose, then one loss later
+        estimate.poses[k] = compose(estimate.poses[k], off)
+    later = lost_poses(scans, estimate, _truth(run), wheels, run.map, config,
+                       from_first_right=True)
+    assert [p.t for p in later] == [scans[40].t]
+    everything = lost_poses(scans, estimate, _truth(run), wheels, run.map, config)
+    assert [p.t for p in everything] == [scans[k].t for k in (0, 1, 2, 40)]
+    assert everything[0].reference_step is None  # the first judged scan has none before it
+    estimate.poses[:] = compose(estimate.poses, off)  # never right
+    assert lost_poses(scans, estimate, _truth(run), wheels, run.map, config,
+                      from_first_right=True) == []
 
 
 def test_the_command_says_what_is_missing(tmp_path, capsys):

@@ -37,12 +37,13 @@ from numpy.typing import NDArray
 from fusion.ambiguity.fit import ScanFit
 from fusion.bench.methods import base_points, laser
 from fusion.bench.task import LOST_HEADING_DEG, LOST_POSITION
-from fusion.config import LocalizerConfig
-from fusion.evaluation.trajectory import Trajectory, associate
+from fusion.config import LocalizerConfig, SensorConfig
+from fusion.evaluation.metrics import ATE, LostFraction
+from fusion.evaluation.trajectory import Trajectory
 from fusion.events import Event, Odometry, Scan
 from fusion.motion import interpolate
 from fusion.scan_icp import point_to_line_icp
-from houghloc.geometry import relative, wrap_scalar
+from houghloc.geometry import relative
 from houghloc.segment_map import SegmentMap
 
 
@@ -106,33 +107,45 @@ def wheels_at(wheels: Trajectory, t: float) -> NDArray[np.float64] | None:
 
 def lost_poses(scans: Sequence[Scan], estimate: Trajectory, reference: Trajectory,
                wheels: Trajectory, segment_map: SegmentMap,
-               config: LocalizerConfig | None = None, max_dt: float = 0.006) -> list[LostPose]:
+               config: LocalizerConfig | None = None, max_dt: float = 0.006,
+               from_first_right: bool = False) -> list[LostPose]:
     """The scans whose estimate (pose ``i`` of ``estimate`` for ``scans[i]``, at the time the
-    localizer wrote it) is lost against its reference pose, paired as the benchmark pairs them
-    (:func:`fusion.evaluation.trajectory.associate`: one to one, within ``max_dt``; lost:
-    ``LOST_POSITION`` or ``LOST_HEADING_DEG``), each with the steps from the judged scan before
-    and its shares on ``segment_map``'s walls."""
+    localizer wrote it) the benchmark scores lost (:func:`fusion.bench.task.score`'s ATE and
+    lost test: paired one to one within ``max_dt``, lost beyond ``LOST_POSITION`` or
+    ``LOST_HEADING_DEG``), each with the steps from the judged scan before and its shares on
+    ``segment_map``'s walls. ``from_first_right``: only the losses after the estimate was first
+    right (a global start's; those before are its search for a first pose)."""
     config = config or LocalizerConfig()
     if len(estimate) != len(scans):
         raise ValueError(f"{len(estimate)} estimated poses for {len(scans)} scans")
+    ate = ATE(max_dt=max_dt).compute(estimate, reference)
+    lost = LostFraction(LOST_POSITION, LOST_HEADING_DEG, max_dt).from_ate(ate).lost
+    pairs = ate.association
+    first_right = (_first_right(estimate.t[pairs.est_index], lost) if from_first_right
+                   else -math.inf)
+    sensor = laser(config)
     fit = ScanFit(segment_map, config.ambiguity)
-    kinds = laser(config).hough.reference_kinds
-    pairs = associate(estimate.t, reference.t, max_dt)
     out: list[LostPose] = []
     previous: _Judged | None = None
-    for i, j in zip(pairs.est_index.tolist(), pairs.ref_index.tolist(), strict=True):
-        scan, pose, ref = scans[i], estimate.poses[i], reference.poses[j]
-        judged = _Judged(scan, ref, pose)
-        dxy = math.hypot(*(pose[:2] - ref[:2]))
-        dth = math.degrees(wrap_scalar(pose[2] - ref[2]))
-        if dxy > LOST_POSITION or abs(dth) > LOST_HEADING_DEG:
-            points = base_points(scan, laser(config))
-            on_ref, on_est = fit.fractions(np.stack([ref, pose]), points, kinds)
-            steps = _steps(previous, judged, points, wheels, config)
-            out.append(LostPose(float(estimate.t[i]), dxy, dth, *steps, float(on_ref),
+    for n, (i, j) in enumerate(zip(pairs.est_index.tolist(), pairs.ref_index.tolist(),
+                                   strict=True)):
+        judged = _Judged(scans[i], reference.poses[j], estimate.poses[i])
+        if lost[n] and estimate.t[i] > first_right:
+            points = base_points(judged.scan, sensor)
+            on_ref, on_est = fit.fractions(np.stack([judged.reference, judged.estimate]),
+                                           points, sensor.hough.reference_kinds)
+            steps = _steps(previous, judged, points, wheels, sensor, config)
+            out.append(LostPose(float(estimate.t[i]), float(ate.position_errors[n]),
+                                math.degrees(ate.heading_errors[n]), *steps, float(on_ref),
                                 float(on_est)))
         previous = judged
     return out
+
+
+def _first_right(times: NDArray[np.float64], lost: NDArray[np.bool_]) -> float:
+    """The time of the first judged pose that is not lost (∞ when none is)."""
+    right = times[~lost]
+    return float(right.min()) if len(right) else math.inf
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,7 +158,7 @@ class _Judged:
 
 
 def _steps(previous: _Judged | None, current: _Judged, points: NDArray[np.float64],
-           wheels: Trajectory, config: LocalizerConfig
+           wheels: Trajectory, sensor: SensorConfig, config: LocalizerConfig
            ) -> tuple[Step | None, Step | None, Step | None, Step | None, float]:
     """The reference's, the estimate's, the wheels' and the scan match's steps from the judged
     scan before, and the match's overlap."""
@@ -157,21 +170,11 @@ def _steps(previous: _Judged | None, current: _Judged, points: NDArray[np.float6
     if w0 is None or w1 is None:
         return reference, estimated, None, None, math.nan
     wheel = relative(w0, w1)
-    match = point_to_line_icp(base_points(previous.scan, laser(config)), points, wheel,
+    match = point_to_line_icp(base_points(previous.scan, sensor), points, wheel,
                               config.scan_odometry)
     if match is None:
         return reference, estimated, Step(wheel), None, math.nan
     return reference, estimated, Step(wheel), Step(match.delta), match.overlap
-
-
-def after_first_right(losses: list[LostPose], judged_times: Iterable[float]
-                      ) -> list[LostPose]:
-    """A global start's losses after the estimate was first right (``judged_times``: the times
-    of the scans that were judged, lost or not): those before it are the search for the first
-    pose, which the start time already reports."""
-    lost_times = {p.t for p in losses}
-    first_right = next((t for t in sorted(judged_times) if t not in lost_times), math.inf)
-    return [p for p in losses if p.t > first_right]
 
 
 def markdown(losses: Sequence[LostPose], t0: float) -> str:
@@ -235,6 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         if not mine:
             continue
         data = RunData.load(run, spec.max_dt)
+        first = min(e.t for e in data.events if isinstance(e, Scan))
         for row in sorted(mine, key=lambda r: (r["protocol"], r["settings"])):
             protocol = Protocol(row["protocol"])
             # each task is read with its own settings: they change the fit and the scan match
@@ -248,13 +252,9 @@ def main(argv: list[str] | None = None) -> int:
                 poses = Trajectory(estimate.t[done:done + len(scans)],
                                    estimate.poses[done:done + len(scans)])
                 done += len(scans)
-                losses = lost_poses(scans, poses, data.reference, wheel_poses(piece.events),
-                                    piece.map_source.segment_map, config, spec.max_dt)
-                if protocol is Protocol.GLOBAL_START:
-                    judged = associate(poses.t, data.reference.t, spec.max_dt)
-                    losses = after_first_right(losses, poses.t[judged.est_index].tolist())
-                found += losses
-            first = min(s.t for s in data.events if isinstance(s, Scan))
+                found += lost_poses(scans, poses, data.reference, wheel_poses(piece.events),
+                                    piece.map_source.segment_map, config, spec.max_dt,
+                                    from_first_right=protocol is Protocol.GLOBAL_START)
             title = f"## {run.name}, {protocol.value}"
             if settings:
                 title += f", {settings_label(settings)}"
