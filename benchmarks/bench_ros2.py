@@ -45,6 +45,7 @@ class NodeRun:
     poses: list[NDArray[np.float64]] = field(default_factory=list)
     tf: dict[float, NDArray[np.float64]] = field(default_factory=dict)  # scan t → map → odom
     states: list[str] = field(default_factory=list)
+    localized: list[float] = field(default_factory=list)  # houghloc/localized, as published
     latencies: list[float] = field(default_factory=list)  # s, scan published → pose received
     seconds: float = 0.0  # wall time of the streaming
     sent: int = 0
@@ -88,7 +89,7 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import LaserScan
-    from std_msgs.msg import String
+    from std_msgs.msg import Float32, String
     from tf2_msgs.msg import TFMessage
 
     from fusion.ros2.messages import (
@@ -137,12 +138,16 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
             out.states.append(msg.data)
             got.notify_all()
 
+    def on_localized(msg: Float32) -> None:
+        out.localized.append(float(msg.data))
+
     pose_sub = client.create_subscription(PoseWithCovarianceStamped, "houghloc/pose", on_pose,
                                           100)
     tf_sub = client.create_subscription(TFMessage, "/tf", on_tf, 100)
     every_state = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
     state_sub = client.create_subscription(String, "houghloc/state", on_state, every_state)
+    localized_sub = client.create_subscription(Float32, "houghloc/localized", on_localized, 100)
     scan_pub = client.create_publisher(LaserScan, "scan", 10)
     odom_pub = client.create_publisher(Odometry, "odom", 100)
     initial_pub = client.create_publisher(PoseWithCovarianceStamped, "initialpose", 10)
@@ -163,7 +168,7 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
     try:
         wait(lambda: all(p.get_subscription_count() for p in
                          (scan_pub, odom_pub, initial_pub, static_pub))
-             and all(s.get_publisher_count() for s in (pose_sub, tf_sub, state_sub)),
+             and all(s.get_publisher_count() for s in (pose_sub, tf_sub, state_sub, localized_sub)),
              "discovery", 60.0 if process is not None else timeout)  # a cold start compiles
         static = TFMessage(transforms=[_transform(TransformStamped(), "base_footprint", "laser",
                                                   EPOCH + run.scan_t[0], MOUNT)])

@@ -78,10 +78,12 @@ def build_parser(version: str) -> argparse.ArgumentParser:
                          description="Simulate a scenario and write log.carmen, gt.tum, map.yaml, "
                          "scenario.yaml (and camera.points for camera scenarios).")
     sim.add_argument("--scenario", default="robocup-laser",
-                     help="preset name (robocup-laser, robocup-camera, office-laser) or a "
+                     help="preset name (robocup-laser, robocup-camera, office-laser, "
+                          "building: a floor plan and a faulty robot drawn from --seed) or a "
                           "scenario YAML")
     sim.add_argument("--out", required=True, type=Path)
-    sim.add_argument("--seed", type=int, default=0)
+    sim.add_argument("--seed", type=int, default=0,
+                     help="the random draw (for building, the building itself too)")
     sim.add_argument("--duration", type=_duration, help="seconds (default: the preset's)")
     sim.set_defaults(handler="sim")
 

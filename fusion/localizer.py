@@ -24,6 +24,7 @@ from fusion.corridor import CorridorMeasurement, CorridorPlacement
 from fusion.ekf import UpdateOutcome
 from fusion.events import MAX_POSE_COORDINATE
 from fusion.hypotheses import HypothesisConfig
+from fusion.integrity import localized_probability
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
 from fusion.points_fix import PointsFix, PointsMeasurement
@@ -61,6 +62,14 @@ class Estimate:
     """the corridor fix placed along its corridor by the scan's points, when it was"""
     by_points: PointsMeasurement | None = None
     """the guess polished on the scan's points, offered where the lines' fix was refused"""
+    mode: float = 1.0
+    """the probability that the filter is around the right place at all (fusion.integrity)"""
+
+    @property
+    def localized_probability(self) -> float:
+        """The probability that ``pose`` is within 0.3 m and 5° of the truth
+        (:func:`fusion.integrity.localized_probability`)."""
+        return localized_probability(self.cov, self.mode)
 
 
 @dataclass
@@ -443,7 +452,8 @@ class Localizer:
         self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
         at_t = leading if leading is not None else self.tracker.pose_at(t)
         pose, cov = at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
-        estimate = Estimate(t, pose, cov, status, fix, outcome, along, by_points)
+        estimate = Estimate(t, pose, cov, status, fix, outcome, along, by_points,
+                            self.manager.mode_probability)
         self.logger.log_scan(t, self.stats.scans - 1, sensor, points, fix, estimate)
         return estimate
 

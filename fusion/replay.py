@@ -26,7 +26,9 @@ from tqdm import tqdm
 from fusion.config import METRICS_VERSION_KEY
 from fusion.evaluation import ATE, ATEResult, LostFraction, NEESResult, Trajectory, chi2_band, nees
 from fusion.events import Event, Landmark, Odometry, PointSet, ReadStats, Scan, Truth
+from fusion.integrity import integrity_scores, is_localized, localized_probability
 from fusion.io.files import atomic_write_json
+from fusion.io.localized import LocalizedWriter
 from fusion.io.tum import TumWriter
 from fusion.localizer import Estimate, Localizer
 from houghloc import __version__
@@ -41,6 +43,8 @@ class ReplayResult:
     cov_upper: NDArray[np.float64]  # N×6: each covariance's upper triangle, row by row
     statuses: list[str]
     truth: Trajectory | None
+    localized_probability: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
+    """Each pose's probability of being within 0.3 m and 5° of the truth (fusion.integrity)"""
     seconds: dict[str, float] = field(default_factory=dict)
     events: int = 0
     interrupted: bool = False
@@ -49,6 +53,15 @@ class ReplayResult:
     scan_cpu: NDArray[np.float64] = field(default_factory=lambda: np.empty(0))
     """Each recorded scan's CPU time (s), in the order of ``t``, when ``replay`` was asked to
     time them: the cost of its fusion."""
+    localized_scans: int = 0
+    """poses reported localized (counted whether or not the poses are kept)"""
+    probability_sum: float = 0.0
+
+    def integrity(self) -> dict[str, float]:
+        """The share of poses reported localized and their mean probability."""
+        n = max(self.scans, 1)
+        return {"localized_fraction": self.localized_scans / n,
+                "mean_probability": self.probability_sum / n}
 
     @property
     def trajectory(self) -> Trajectory:
@@ -140,13 +153,15 @@ def _signals_between_events() -> Iterator[Callable[[], None]]:
 def replay(events: Iterable[Event], localizer: Localizer, *,
            trajectory_path: str | Path | None = None, progress: bool | None = None,
            description: str = "replay", keep: bool = True,
-           time_scans: bool = False) -> ReplayResult:
+           time_scans: bool = False, localized_path: str | Path | None = None) -> ReplayResult:
     """Feed every event to the localizer in arrival order; collect the estimate at each scan.
 
     ``progress``: a tqdm bar in scans (None: only when writing to a terminal). ``keep=False``
     keeps no per-scan results in memory (they are in the trajectory file): memory then does not
     grow with the log, and only counts and timings are returned. ``time_scans``: keep each
     scan's CPU time too (``ReplayResult.scan_cpu``, for a benchmark's worst window).
+    ``localized_path``: where each pose's integrity is written as it is recorded
+    (:mod:`fusion.io.localized`).
 
     A scan taken after the newest odometry reading (its reading for the same instant is next in
     the stream, or the clocks differ by a rounding) is used at once, but its pose is recorded
@@ -157,12 +172,14 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     stamp, would otherwise hold it until the stamps catch up, and then give it all the motion
     since). Outputs stay in scan order.
     """
-    rows = _Rows(1 + 3 + 6)  # t, pose, covariance's upper triangle
+    rows = _Rows(1 + 3 + 6 + 1)  # t, pose, covariance's upper triangle, localized probability
     statuses: list[str] = []  # the same few strings, shared: one reference a scan
     scan_cpu: list[float] = []
     truth = _Rows(4)  # t, x, y, θ
     seconds = {"odometry": 0.0, "scans": 0.0}
     writer = TumWriter(trajectory_path).open() if trajectory_path is not None else None
+    side = LocalizedWriter(localized_path).open() if localized_path is not None else None
+    reported = [0, 0.0]  # poses reported localized, sum of the probabilities
     bar = tqdm(desc=description, unit="scan", disable=(None if progress is None else not progress),
                mininterval=0.5, dynamic_ncols=True)
     n_events = 0
@@ -172,12 +189,18 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     tracker = localizer.tracker
     pending: deque[tuple[float, float, Estimate]] = deque()  # (output time, scan time, estimate)
 
-    def record(t_out: float, pose: NDArray, cov: NDArray, status: str) -> None:
+    def record(t_out: float, pose: NDArray, cov: NDArray, est: Estimate) -> None:
+        status = est.status
+        probability = localized_probability(np.asarray(cov), est.mode)
+        reported[0] += is_localized(probability)
+        reported[1] += probability
         if keep:
-            rows.append(t_out, pose, np.asarray(cov)[_UPPER])
+            rows.append(t_out, pose, np.asarray(cov)[_UPPER], probability)
             statuses.append(status)
         if writer is not None:
             writer.write(t_out, *pose)
+        if side is not None:
+            side.write(t_out, probability, status)
 
     def flush(all_of_them: bool = False) -> None:
         newest = tracker.odometry_time
@@ -185,7 +208,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             t_out, t_scan, est = pending.popleft()
             at_t = tracker.pose_at(t_scan)
             pose, cov = at_t if at_t is not None else (est.pose, est.cov)
-            record(t_out, pose, cov, est.status)
+            record(t_out, pose, cov, est)
 
     started = time.perf_counter()
     with _signals_between_events() as stop_if_signalled:
@@ -230,7 +253,7 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
                 if pending or (newest is not None and est.t > newest):
                     pending.append((t_est, est.t, est))
                 else:
-                    record(t_est, est.pose, est.cov, est.status)
+                    record(t_est, est.pose, est.cov, est)
                 bar.update()
             stop_if_signalled()  # a signal that came in the last event
         except KeyboardInterrupt:
@@ -240,14 +263,17 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
             bar.close()
             if writer is not None:
                 writer.close()
+            if side is not None:
+                side.close()
             localizer.logger.flush()
     seconds["total"] = time.perf_counter() - started
     seconds.update(localizer.stats.seconds)
     table, truth_table = rows.array(), truth.array()
     return ReplayResult(
-        table[:, 0], table[:, 1:4], table[:, 4:], statuses,
+        table[:, 0], table[:, 1:4], table[:, 4:10], statuses,
         Trajectory(truth_table[:, 0], truth_table[:, 1:]) if len(truth_table) else None,
-        seconds, n_events, interrupted, n_scans, (first_t, last_t), np.array(scan_cpu))
+        table[:, 10], seconds, n_events, interrupted, n_scans, (first_t, last_t),
+        np.array(scan_cpu), int(reported[0]), float(reported[1]))
 
 
 def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) -> dict[str, Any]:
@@ -261,6 +287,9 @@ def accuracy(result: ReplayResult | Trajectory, reference: Trajectory | None) ->
     idx = ate.association.est_index
     if len(idx) and isinstance(result, ReplayResult):
         out["nees"] = _nees(result, reference, ate).as_dict()
+        if len(result.localized_probability) == len(est):
+            out["integrity"] = integrity_scores(result.localized_probability[idx],
+                                                ~np.asarray(lost.lost, dtype=bool))
     return out
 
 
@@ -312,6 +341,7 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
         "statuses": dict(stats.statuses),
         "tracked_fraction": round(stats.tracked_fraction, 6),
         "localized": localizer.localized,
+        "integrity": result.integrity(),
         "ambiguity": localizer.manager.summary(),
         "seconds": {k: round(v, 6) for k, v in result.seconds.items()},
         "time_per_scan_ms": {

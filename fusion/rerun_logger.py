@@ -27,6 +27,8 @@ Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D trans
     metrics/innovation/{x,y,theta}, metrics/nis, metrics/sigma/{x,y,theta}, metrics/matches,
     metrics/error/{position,heading}          Scalars (errors: truth interpolated at the scan)
     metrics/along_corridor                    Scalars (m a corridor fix was moved along it)
+    metrics/localized                         Scalars (the probability that the pose is right,
+                                              fusion.integrity)
     log/state                                 TextLog: the ambiguity manager's state and reason
     log/scan                                  TextLog: why a scan was not used (not "accepted")
     global/hypotheses                         Arrows2D with the scores as labels
@@ -283,6 +285,8 @@ class RerunLogger:
                 t, index, 1, text=[f"scan {index} ({sensor}): {estimate.status}"
                                    + (f": {reason}" if reason else "")],
                 level=["DEBUG" if estimate.status == ScanStatus.NO_FIX else "WARN"])
+        self._batch("metrics/localized", rr.Scalars).add(
+            t, index, 1, scalars=float(estimate.localized_probability))
         self._innovation(row, correction, getattr(estimate, "outcome", None))
         self._error_series.add_estimate(t, index, pose)
         along = getattr(estimate, "along", None)

@@ -92,7 +92,8 @@ def run_log(source: LogSource | Iterable[Event], segment_map: SegmentMap,
     ``initial_pose``: where the robot starts (None: global localization; with a log, its
     odometry before the first scan is skipped). ``reference``: poses to score against (with a
     log, also shown in the recording beside the estimate). ``out``: a directory for
-    ``trajectory.tum`` and ``metrics.json`` (None: nothing written, every pose kept in memory).
+    ``trajectory.tum``, ``localized.csv`` (:mod:`fusion.io.localized`) and ``metrics.json``
+    (None: nothing written, every pose kept in memory).
     ``time_scans``: each scan's CPU time in the result (a benchmark's worst window)."""
     logger = logger or NullLogger()
     if isinstance(source, LogSource):
@@ -115,6 +116,7 @@ def run_log(source: LogSource | Iterable[Event], segment_map: SegmentMap,
         out.mkdir(parents=True, exist_ok=True)
     result = replay(events, localizer,
                     trajectory_path=None if out is None else out / "trajectory.tum",
+                    localized_path=None if out is None else out / "localized.csv",
                     progress=progress, description=description,
                     keep=out is None or reference is not None, time_scans=time_scans)
     metrics = metrics_document(result, localizer, read_stats, reference, metrics_extra)

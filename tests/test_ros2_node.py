@@ -58,7 +58,12 @@ def test_every_scan_gets_its_pose_and_the_poses_match_the_truth(through_node):
     errors = result.errors(run)
     assert np.sqrt(np.mean(errors**2)) <= ATE_M
     assert errors.max() <= 5 * ATE_M
-    assert result.states[-1].startswith("tracking")
+    assert result.states[-1].startswith("tracking, localized")
+    # the integrity output: a probability with every pose, sure in the office (the node's
+    # median is 0.97: its covariance is the one at the scan, before the odometry after it)
+    assert len(result.localized) >= len(result.t) - 5
+    assert all(0.0 <= p <= 1.0 for p in result.localized)
+    assert np.median(result.localized) > 0.9
 
 
 def test_initialpose_starts_the_localizer_again_where_rviz_says(through_node):

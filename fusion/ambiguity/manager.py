@@ -202,6 +202,18 @@ class AmbiguityManager:
             return None
         return bank.leader.pose, bank.leader.cov
 
+    @property
+    def mode_probability(self) -> float:
+        """The probability that the reported pose's filter is around the right place at all
+        (:mod:`fusion.integrity`): 1 while tracking, the leader's weight among the followed
+        hypotheses, 0 while collecting views with none, or lost."""
+        if self.state is State.TRACKING:
+            return 1.0
+        bank = self.relocalization.bank
+        if bank is None or not len(bank):
+            return 0.0
+        return float(bank.leader.weight)
+
     # ------------------------------------------------------------------ transitions
     def _go(self, t: float, new: State, reason: str) -> None:
         """Every transition, with what it resets; recorded, counted and logged with its

@@ -186,7 +186,10 @@ class RunData:
     def load(cls, spec: RunSpec, max_dt: float) -> RunData:
         from fusion.io import open_log
 
-        events, _ = open_log(spec.log)
+        if spec.log is None:  # a scenario run not yet simulated (fusion.bench.generated)
+            raise ValueError(f"run {spec.name}: no log to read")
+        log = spec.log
+        events, _ = open_log(log)
         kept = tuple(from_first_scan(events, spec.max_scans))
         scans = [e for e in kept if isinstance(e, Scan)]
         if not scans:
@@ -194,8 +197,7 @@ class RunData:
         reference = cls._reference(spec, scans)
         build_scans: tuple[Scan, ...] = ()
         if spec.build_from is not None:
-            build_scans = tuple(_placed_scans(spec.build_from, reference, spec.log, scans,
-                                              max_dt))
+            build_scans = tuple(_placed_scans(spec.build_from, reference, log, scans, max_dt))
         return cls(spec, kept, reference, build_scans, max_dt)
 
     @staticmethod
@@ -209,7 +211,7 @@ class RunData:
                               np.array([s.reference for s in have]))
         if _is_tum(spec.reference):
             return Trajectory.from_tum(spec.reference)
-        same = spec.reference.resolve() == spec.log.resolve()
+        same = spec.log is not None and spec.reference.resolve() == spec.log.resolve()
         return reference_poses(spec.reference, None if same else scans)
 
     def pieces(self, protocol: Protocol) -> list[Piece]:

@@ -48,6 +48,8 @@ class Localized:
     cpu_seconds: float
     statuses: dict[str, int] | None = None
     scan_cpu: NDArray[np.float64] | None = None  # each scan's CPU seconds, when measured
+    probability: NDArray[np.float64] | None = None
+    """each pose's reported probability of being right, for a method that reports one"""
 
 
 def localize(method: Method, piece: Piece, config: LocalizerConfig) -> Localized:
@@ -84,7 +86,7 @@ def _houghloc(piece: Piece, config: LocalizerConfig, _method: Method) -> Localiz
                   time_scans=True)
     cpu = time.process_time() - cpu
     return Localized(run.result.trajectory, cpu, dict(run.localizer.stats.statuses),
-                     run.result.scan_cpu)
+                     run.result.scan_cpu, run.result.localized_probability)
 
 
 class _DeadReckoning:

@@ -130,6 +130,8 @@ def summary_markdown(rows: Sequence[dict[str, Any]]) -> str:
             when = "never" if not math.isfinite(t) else f"{t:.1f} s"
             out.write(f"| {r['run']} | {_label(r)} | {when} | {_pct(_f(r, 'lost_frac'))} | "
                       f"{_f(r, 'cpu_ms_per_scan'):.2f} | {_worst(r)} |\n")
+    out.write(integrity_markdown(ok))
+    out.write(generated_markdown(ok))
     failed = [r for r in rows if r.get("status") != "ok"]
     if failed:
         out.write("\n## Failed tasks\n\n| log | method | protocol | error |\n|---|---|---|---|\n")
@@ -181,6 +183,65 @@ def plot(rows: Sequence[dict[str, Any]], path: Path) -> Path | None:
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     return atomic_write_bytes(path, buffer.getvalue())
+
+
+def integrity_markdown(ok: Sequence[dict[str, Any]]) -> str:
+    """Per task of a method that says how sure it is: the share of poses it reported
+    localized, the share reported localized while lost (confident-wrong) and the Brier score
+    of its probabilities (0 perfect, 0.25 a coin's)."""
+    these = [r for r in ok if math.isfinite(_f(r, "brier"))]
+    if not these:
+        return ""
+    out = io.StringIO()
+    out.write("\n## Integrity (reported localized, and how well)\n\n"
+              "| log | method | protocol | localized | confident-wrong | Brier |\n"
+              "|---|---|---|---|---|---|\n")
+    for r in sorted(these, key=lambda r: (r["protocol"], r["run"], _label(r))):
+        out.write(f"| {r['run']} | {_label(r)} | {r['protocol']} | "
+                  f"{_pct(_f(r, 'localized_frac'))} | {_pct(_f(r, 'confident_wrong_frac'))} | "
+                  f"{_f(r, 'brier'):.3f} |\n")
+    return out.getvalue()
+
+
+GOAL_ATE = 0.02
+"""m: the generated buildings' goal for the median ATE over seeds."""
+GOAL_LOST = 0.01
+"""the share of poses lost (outside the kidnap's recovery allowance) a seed may have"""
+GOAL_CONFIDENT_WRONG = 0.001
+GOAL_RECOVERY = 5.0
+"""s to recover from a kidnap"""
+
+
+def generated_markdown(ok: Sequence[dict[str, Any]]) -> str:
+    """For simulated runs (those scored against their kidnaps), per method and protocol: the
+    seeds, the median ATE, and how many seeds meet each goal."""
+    these = [r for r in ok if math.isfinite(_f(r, "lost_outside_kidnap_frac"))]
+    if not these:
+        return ""
+    out = io.StringIO()
+    out.write(f"\n## Generated runs: goals\n\nSeeds meeting each goal: lost ≤ "
+              f"{GOAL_LOST:.0%} (outside the kidnap's recovery allowance), confident-wrong ≤ "
+              f"{GOAL_CONFIDENT_WRONG:.1%}, kidnap recovered ≤ {GOAL_RECOVERY:g} s (of the seeds "
+              "with a kidnap); median ATE outside the recovery allowance "
+              f"(goal ≤ {GOAL_ATE * 100:g} cm).\n\n"
+              "| method | protocol | seeds | median ATE | lost ok | confident-wrong ok | "
+              "recovered ok |\n|---|---|---|---|---|---|---|\n")
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in these:
+        groups.setdefault((_label(r), r["protocol"]), []).append(r)
+    for (label, protocol), rs in sorted(groups.items()):
+        n = len(rs)
+        ate = sorted(_f(r, "ate_outside_kidnap_m") for r in rs)
+        median = ate[n // 2] if n % 2 else 0.5 * (ate[n // 2 - 1] + ate[n // 2])
+        lost = sum(_f(r, "lost_outside_kidnap_frac") <= GOAL_LOST for r in rs)
+        cw = [_f(r, "confident_wrong_frac") for r in rs]
+        cw_ok = (f"{sum(v <= GOAL_CONFIDENT_WRONG for v in cw)}"
+                 if all(math.isfinite(v) for v in cw) else "–")
+        kidnapped = [r for r in rs if r.get("recovery_s", "") != ""]
+        rec = sum(_f(r, "recovery_s") <= GOAL_RECOVERY for r in kidnapped)
+        out.write(f"| {label} | {protocol} | {n} | {_length(median)} | {lost} | {cw_ok} | "
+                  f"{rec} of {len(kidnapped)} |\n")
+    return out.getvalue()
 
 
 def write_report(rows: Sequence[dict[str, Any]], out: Path) -> None:

@@ -76,7 +76,12 @@ class RunSpec(_Strict):
     """One log to localize and where its map and reference come from."""
 
     name: str = Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
-    log: Path
+    log: Path | None = Field(None, description="the log to localize (not with `scenario`)")
+    scenario: str | None = Field(
+        None, description="a simulated scenario (`houghloc sim --scenario`) drawn from `seed` "
+        "by the task itself: its log, map and ground truth replace log, map and reference")
+    seed: int = 0
+    duration: float | None = Field(None, gt=0.0, description="s of the scenario (its own)")
     build_from: Path | None = Field(
         None, description="a log whose scans carry reference poses (a corrected log), or any log "
         "when `reference` gives the poses: the maps are built from its scans")
@@ -94,6 +99,13 @@ class RunSpec(_Strict):
 
     @model_validator(mode="after")
     def _one_map_source(self) -> RunSpec:
+        if self.scenario is not None:
+            if any(v is not None for v in (self.log, self.build_from, self.map, self.reference)):
+                raise ValueError("a scenario run brings its own log, map and reference: give "
+                                 "none of log, build_from, map and reference")
+            return self
+        if self.log is None:
+            raise ValueError("give log (a log to localize) or scenario (a simulated one)")
         if (self.build_from is None) == (self.map is None):
             raise ValueError("give exactly one of build_from (a corrected log) and map (a "
                              "segment-map YAML)")
@@ -102,9 +114,31 @@ class RunSpec(_Strict):
         return self
 
 
+class GeneratedRuns(_Strict):
+    """Runs of a simulated scenario, one per seed of an inclusive range: ``{scenario: building,
+    seeds: [0, 49]}`` names them ``building-0`` … ``building-49``."""
+
+    scenario: str = "building"
+    seeds: tuple[int, int]
+    duration: float | None = Field(None, gt=0.0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> GeneratedRuns:
+        if self.seeds[0] > self.seeds[1]:
+            raise ValueError("seeds must be [first, last] with first <= last")
+        return self
+
+    def runs(self) -> list[RunSpec]:
+        return [RunSpec(name=f"{self.scenario}-{seed}", scenario=self.scenario, seed=seed,
+                        duration=self.duration)
+                for seed in range(self.seeds[0], self.seeds[1] + 1)]
+
+
 class SweepSpec(_Strict):
     data: Path | None = None
-    runs: list[RunSpec] = Field(min_length=1)
+    runs: list[RunSpec] = Field(default_factory=list)
+    generated: list[GeneratedRuns] = Field(
+        default_factory=list, description="simulated runs, a seed range each (added to runs)")
     grid: dict[str, list[Any]] = Field(
         default_factory=dict, description="houghloc config overrides: dotted key → values")
     methods: list[Method] = Field(default_factory=lambda: [Method.HOUGHLOC], min_length=1)
@@ -123,11 +157,18 @@ class SweepSpec(_Strict):
 
     @model_validator(mode="after")
     def _unique_names(self) -> SweepSpec:
-        names = [r.name for r in self.runs]
+        if not self.all_runs:
+            raise ValueError("no run: give runs or generated")
+        names = [r.name for r in self.all_runs]
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
             raise ValueError(f"run names must be unique: {', '.join(twice)}")
         return self
+
+    @property
+    def all_runs(self) -> list[RunSpec]:
+        """The runs given one by one, then the generated ones, seed by seed."""
+        return [*self.runs, *(r for g in self.generated for r in g.runs())]
 
     def settings(self) -> list[dict[str, Any]]:
         """Every combination of the grid's values ({} when the grid is empty)."""
@@ -151,7 +192,10 @@ def load_spec(path: str | Path) -> SweepSpec:
     runs = []
     for i, run in enumerate(spec.runs):
         fields: dict[str, Any] = {}
-        for name in ("log", "build_from", "map", "reference", "relations", "config"):
+        # a scenario is simulated by its task: no file of it to find
+        names = ("config",) if run.scenario is not None else (
+            "log", "build_from", "map", "reference", "relations", "config")
+        for name in names:
             value = getattr(run, name)
             if value is None:
                 continue
@@ -160,9 +204,10 @@ def load_spec(path: str | Path) -> SweepSpec:
                 raise SpecError(f"spec {path}: runs.{i}.{name}: {resolved} does not exist")
             fields[name] = resolved
         runs.append(run.model_copy(update=fields))
+    runs += [r for g in spec.generated for r in g.runs()]
     for key in spec.grid:  # an unknown key fails here, not in a worker an hour later
         _check_setting(path, key, spec.grid[key])
-    return spec.model_copy(update={"runs": runs, "data": data})
+    return spec.model_copy(update={"runs": runs, "generated": [], "data": data})
 
 
 def _check_setting(path: Path, key: str, values: list[Any]) -> None:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from fusion.bench.data import Piece, RunData, covered
+from fusion.bench.generated import kidnap_times, outside_allowance, recovery_times, simulated
 from fusion.bench.methods import Localized, MissingPeer, localize, supports
 from fusion.bench.spec import Method, Protocol, RunSpec, apply_settings, settings_label
 from fusion.evaluation import (
@@ -27,6 +28,7 @@ from fusion.evaluation import (
     Trajectory,
     window_means,
 )
+from fusion.integrity import integrity_scores
 
 LOST_POSITION = 0.3
 """m: a pose farther than this from the reference is lost (as is one off by LOST_HEADING_DEG)."""
@@ -35,7 +37,8 @@ LOST_HEADING_DEG = 5.0
 COLUMNS = ("task_id", "run", "method", "protocol", "settings", "scans", "ate_rmse_m",
            "ate_max_m", "heading_rmse_deg", "lost_frac", "covered_frac", "lost_covered_frac",
            "rel_trans_m", "rel_rot_rad", "global_time_s", "cpu_ms_per_scan", "cpu_ms_worst_10s",
-           "status", "error")
+           "localized_frac", "confident_wrong_frac", "brier", "recovery_s",
+           "lost_outside_kidnap_frac", "ate_outside_kidnap_m", "status", "error")
 """The columns of ``results.csv``, in order."""
 
 
@@ -95,7 +98,8 @@ def run_task(task: Task) -> TaskResult:
 
 def _run(task: Task, row: dict[str, Any]) -> Trajectory:
     config = apply_settings(task.run.config, task.settings)
-    data = RunData.load(task.run, task.max_dt)
+    run = simulated(task.run) if task.run.scenario is not None else task.run
+    data = RunData.load(run, task.max_dt)
     pieces = data.pieces(task.protocol)
     global_start = task.protocol is Protocol.GLOBAL_START
     if not supports(task.method, global_start):
@@ -107,14 +111,19 @@ def _run(task: Task, row: dict[str, Any]) -> Trajectory:
                                f"{len(piece.scans)} scans")
     trajectory = Trajectory(np.concatenate([d.trajectory.t for d in done]),
                             np.concatenate([d.trajectory.poses for d in done]))
-    row.update(score(trajectory, data, pieces, done, task.max_dt, global_start))
+    row.update(score(trajectory, data, pieces, done, task.max_dt, global_start,
+                     kidnap_times(task.run) if task.run.scenario is not None else None))
     return trajectory
 
 
 def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list[Localized],
-          max_dt: float, global_start: bool) -> dict[str, Any]:
-    """ATE, lost fraction over all poses and over covered ones, relation errors, CPU time and,
-    for a global start, the time until right and staying right."""
+          max_dt: float, global_start: bool, kidnaps: list[float] | None = None
+          ) -> dict[str, Any]:
+    """ATE, lost fraction over all poses and over covered ones, relation errors, CPU time,
+    for a global start the time until right and staying right; where the method reports how
+    sure it is, the share of poses reported localized, confident-wrong and the Brier score
+    (:func:`fusion.integrity.integrity_scores`); given the times of ``kidnaps``, the time to
+    recover from the slowest, and the lost share and ATE outside their recovery allowance."""
     scans = sum(len(d.trajectory) for d in done)
     ate = ATE(max_dt=max_dt).compute(trajectory, data.reference)
     lost = LostFraction(LOST_POSITION, LOST_HEADING_DEG, max_dt).from_ate(ate).lost
@@ -131,6 +140,19 @@ def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list
         "cpu_ms_per_scan": 1e3 * sum(d.cpu_seconds for d in done) / max(scans, 1),
         "cpu_ms_worst_10s": 1e3 * _worst_window(done),
     }
+    est_t = trajectory.t[ate.association.est_index]
+    if all(d.probability is not None for d in done):
+        probability = np.concatenate([d.probability for d in done])[ate.association.est_index]
+        scores = integrity_scores(probability, ~lost)
+        out.update(localized_frac=scores["localized_fraction"],
+                   confident_wrong_frac=scores["confident_wrong"], brier=scores["brier"])
+    if kidnaps is not None:  # a simulated run: its kidnaps (if any) are known
+        if kidnaps:
+            out["recovery_s"] = max(recovery_times(est_t, lost, kidnaps))
+        keep = outside_allowance(est_t, kidnaps)
+        if keep.any():
+            out["lost_outside_kidnap_frac"] = float(np.mean(lost[keep]))
+            out["ate_outside_kidnap_m"] = float(np.sqrt(np.mean(ate.position_errors[keep]**2)))
     if data.spec.relations is not None:
         out.update(_relations(trajectory, data))
     if global_start:

@@ -6,7 +6,9 @@
     /tf_static ──▶ the laser's mount on the robot (base_frame → the scans' frame_id)
 
     houghloc/pose (PoseWithCovarianceStamped, as amcl_pose), /tf map → odom (as AMCL),
-    houghloc/state (std_msgs/String: the ambiguity manager's state and why)
+    houghloc/state (std_msgs/String: the ambiguity manager's state, localized or not, and why)
+    houghloc/localized (std_msgs/Float32: the probability that the pose is within 0.3 m and 5°
+    of the truth, with every pose; fusion.integrity)
 
 A scan waits for the odometry at its time (as AMCL waits for the odom → base transform) at most
 ``odom_wait`` seconds, so that the filter predicts to the scan before the scan corrects it; a
@@ -39,10 +41,11 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 from sensor_msgs.msg import LaserScan
-from std_msgs.msg import String
+from std_msgs.msg import Float32, String
 
 from fusion.config import LocalizerConfig
 from fusion.events import Scan
+from fusion.integrity import is_localized
 from fusion.io.rosbag import StaticTree, odometry_event, scan_event
 from fusion.localizer import Estimate, Localizer
 from fusion.ros2.messages import (
@@ -109,6 +112,7 @@ class LocalizerNode(Node):
 
         self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "houghloc/pose", 10)
         self.state_pub = self.create_publisher(String, "houghloc/state", LATCHED)
+        self.localized_pub = self.create_publisher(Float32, "houghloc/localized", 10)
         self.tf_pub = None
         if tf2_msgs_available():
             from tf2_msgs.msg import TFMessage
@@ -248,8 +252,12 @@ class LocalizerNode(Node):
         assert self.localizer is not None
         manager = self.localizer.manager
         reason = manager.transitions[-1].reason if manager.transitions else ""
-        self._publish_state(f"{manager.state.value} ({reason})" if reason
-                            else manager.state.value)
+        # the integrity output (fusion.integrity): what a navigation stack should trust
+        probability = estimate.localized_probability
+        self.localized_pub.publish(Float32(data=float(probability)))
+        localized = "localized" if is_localized(probability) else "not localized"
+        self._publish_state(f"{manager.state.value}, {localized} ({reason})" if reason
+                            else f"{manager.state.value}, {localized}")
 
     def _publish_state(self, text: str) -> None:
         if text != self._state_text:

@@ -94,6 +94,9 @@ class OdometryConfig(_Model):
     right_scale_error: float = Field(0.015, gt=-1.0)
     wheelbase_error: float = Field(0.0, gt=-1.0)
     wheel_noise: float = Field(0.005, ge=0.0, description="m per √m rolled, per wheel")
+    turn_slip: float = Field(0.0, ge=0.0, lt=1.0, description=(
+        "the wheels over-report a turn by this fraction as it tightens: dθ̃ = dθ·(1 + s·c), "
+        "c = min(1, |dθ/ds| / 1 rad/m) (0 driving straight, 1 turning in place)"))
     frame_offset: tuple[float, float, float] = (576.5, 0.1, -2.26)
 
 
@@ -177,6 +180,14 @@ class Kidnap(_Model):
         return math.radians(self.dtheta_deg)
 
 
+class OdometryGap(_Model):
+    """From ``t`` (seconds from the start) for ``duration`` seconds no odometry record is written
+    (a driver that stalls); the wheels keep counting, so the next record carries the motion."""
+
+    t: float = Field(ge=0.0)
+    duration: float = Field(gt=0.0)
+
+
 class ScenarioConfig(_Model):
     """One simulated run. ``map`` is a path, or the name of a packaged map
     (``fusion/configs/maps/``)."""
@@ -196,6 +207,9 @@ class ScenarioConfig(_Model):
     obstacles: list[ObstacleGroup] = Field(default_factory=list)
     clutter: ClutterConfig = ClutterConfig()
     kidnaps: list[Kidnap] = Field(default_factory=list)
+    odometry_gaps: list[OdometryGap] = Field(default_factory=list)
+    transparent: list[str] = Field(
+        default_factory=list, description="ids of map walls the laser sees through (glass)")
 
     @model_validator(mode="after")
     def _obstacle_steps_small(self) -> ScenarioConfig:

@@ -114,9 +114,11 @@ def _write_carmen(run: SimRun, f: IO[str], laser_message: str) -> None:
     def odom_lines() -> Iterator[tuple[float, int, str]]:
         for k0 in range(0, len(run.odom_t), _BLOCK):  # in blocks: a list per record is costly
             block = slice(k0, k0 + _BLOCK)
-            for (x, y, th), v, w, t in zip(run.odom_pose[block].tolist(), tv[block].tolist(),
-                                           rv[block].tolist(), run.odom_t[block].tolist(),
-                                           strict=True):
+            for (x, y, th), v, w, t, gone in zip(
+                    run.odom_pose[block].tolist(), tv[block].tolist(), rv[block].tolist(),
+                    run.odom_t[block].tolist(), run.odom_missing[block].tolist(), strict=True):
+                if gone:  # a gap in the records (ScenarioConfig.odometry_gaps)
+                    continue
                 yield t, 0, (f"ODOM {x:.6f} {y:.6f} {th:.6f} {v:.6f} {w:.6f} 0.000000 {t:.6f} "
                              f"{HOSTNAME} {t:.6f}\n")
 

@@ -8,7 +8,7 @@ so does a dropped beam; a spurious short return is labelled −4. The noise mode
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -63,9 +63,12 @@ class Occluders:
     map_size: int  # segments of the map; above _NEAR_QUERY_MIN_SEGMENTS query the index per scan
 
     @classmethod
-    def build(cls, m: SegmentMap, clutter: FloatArray | None = None) -> Occluders:
+    def build(cls, m: SegmentMap, clutter: FloatArray | None = None,
+              transparent: Sequence[str] = ()) -> Occluders:
+        """Walls and clutter; the walls named in ``transparent`` (glass) are left out."""
         c = np.empty((0, 4)) if clutter is None else np.asarray(clutter, float).reshape(-1, 4)
-        walls = np.flatnonzero(m.is_wall)
+        seen = m.is_wall & ~np.isin(np.asarray(m.ids, dtype=object), list(transparent))
+        walls = np.flatnonzero(seen)
         return cls(
             starts=np.vstack((m.starts[walls], c[:, :2])),
             ends=np.vstack((m.ends[walls], c[:, 2:])),

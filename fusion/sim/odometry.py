@@ -24,7 +24,13 @@ def measured_motion(motion: FloatArray, cfg: OdometryConfig, rng: np.random.Gene
     left = (1.0 + cfg.left_scale_error) * left + noise[:, 0] * np.sqrt(np.abs(left))
     right = (1.0 + cfg.right_scale_error) * right + noise[:, 1] * np.sqrt(np.abs(right))
     believed_base = cfg.wheelbase * (1.0 + cfg.wheelbase_error)
-    return np.column_stack((0.5 * (left + right), (right - left) / believed_base))
+    turn = (right - left) / believed_base
+    if cfg.turn_slip:
+        # the tighter the turn, the more the wheels scrub: the encoders count more turn than
+        # the robot made (OdometryConfig.turn_slip)
+        tightness = np.minimum(1.0, np.abs(dth) / np.maximum(np.abs(ds), 1e-9))
+        turn = turn * (1.0 + cfg.turn_slip * tightness)
+    return np.column_stack((0.5 * (left + right), turn))
 
 
 def dead_reckon(motion: FloatArray, frame_offset: tuple[float, float, float]) -> FloatArray:

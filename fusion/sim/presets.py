@@ -7,6 +7,8 @@
   in the paper), with the three moving robots.
 * ``office-laser``: the office floor, a 2D laser, four people (r = 0.2 m, 0.8 m/s), eight unmapped
   boxes, 5 minutes along the corridor-and-rooms loop.
+* ``building``: a floor plan, tour and faulty robot drawn from the seed
+  (:mod:`fusion.sim.building`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,9 @@ from fusion.sim.config import (
     ObstacleGroup,
     ScenarioConfig,
 )
+
+BUILDING = "building"
+"""A building drawn from the seed (:mod:`fusion.sim.building`): a new floor plan per seed."""
 
 _ROBOTS = ObstacleGroup(count=3, radius=0.25, speed=0.5, turn_noise=0.5, kind="robot")
 _PEOPLE = ObstacleGroup(count=4, radius=0.2, speed=0.8, turn_noise=0.8, kind="person")
@@ -40,10 +45,15 @@ PRESETS: dict[str, ScenarioConfig] = {
 
 def scenario_preset(name: str, seed: int = 0, duration: float | None = None) -> ScenarioConfig:
     """A named scenario with the given seed (and duration in seconds, if given)."""
+    if name == BUILDING:
+        from fusion.sim.building import building_scenario
+
+        return building_scenario(seed, duration)
     try:
         cfg = PRESETS[name]
     except KeyError:
-        raise ValueError(f"unknown scenario preset {name!r}; known: {', '.join(PRESETS)}") from None
+        raise ValueError(f"unknown scenario preset {name!r}; known: "
+                         f"{', '.join([*PRESETS, BUILDING])}") from None
     update: dict[str, object] = {"seed": seed}
     if duration is not None:
         update["duration"] = float(duration)

@@ -68,6 +68,7 @@ class SimRun:
     odom_pose: FloatArray  # N×3, odometry frame
     odom_truth: FloatArray  # N×3, map frame
     kidnapped: NDArray[np.bool_]  # N−1: a kidnap between odometry records k and k+1
+    odom_missing: NDArray[np.bool_]  # N: records not delivered (ScenarioConfig.odometry_gaps)
     scan_t: FloatArray  # K
     laser: LaserRecording | None  # the K scans, cast on demand; None without a laser
     angles: FloatArray  # B
@@ -119,9 +120,10 @@ class SimRun:
         max_range = self.config.laser.max_range if self.config.laser else np.inf
 
         def odometry() -> Iterator[tuple[float, int, int, Event]]:
-            for k, (t, p) in enumerate(zip(self.odom_t.tolist(), self.odom_pose.tolist(),
-                                           strict=True)):
-                yield t, 0, k, Odometry(t, p[0], p[1], p[2])
+            for k, (t, p, gone) in enumerate(zip(self.odom_t.tolist(), self.odom_pose.tolist(),
+                                                 self.odom_missing.tolist(), strict=True)):
+                if not gone:
+                    yield t, 0, k, Odometry(t, p[0], p[1], p[2])
 
         def scans() -> Iterator[tuple[float, int, int, Event]]:
             if self.laser is None:
@@ -189,7 +191,8 @@ def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
         scan_truth = interpolate_poses(scan_t, odom_t, traj.poses)
         scan_discs = discs_at(scan_t - cfg.start_time, cfg.obstacle_dt, track, radii)
         laser: LaserRecording | None = LaserRecording(
-            m, cfg.laser, angles, Occluders.build(m, clutter), scan_truth, scan_discs,
+            m, cfg.laser, angles, Occluders.build(m, clutter, cfg.transparent), scan_truth,
+            scan_discs,
             seed=seeds[4])
         scan_odom = interpolate_poses(scan_t, odom_t, odom)
         scan_obstacles = scan_discs[:, :, :2].copy()
@@ -218,7 +221,8 @@ def simulate(cfg: ScenarioConfig, map_base: Path | None = None) -> SimRun:
     return SimRun(
         config=cfg, map=m, map_path=map_path, route=route, clutter=clutter,
         obstacle_radii=radii, odom_t=odom_t, odom_pose=odom, odom_truth=traj.poses,
-        kidnapped=traj.kidnapped, scan_t=scan_t, laser=laser, angles=angles,
+        kidnapped=traj.kidnapped, odom_missing=_missing(cfg, odom_t), scan_t=scan_t,
+        laser=laser, angles=angles,
         scan_truth=scan_truth, scan_odom=scan_odom,
         scan_obstacles=scan_obstacles, cam_t=cam_t, cam_arrival=cam_arrival,
         cam_points=cam_points, cam_labels=cam_labels, cam_truth=cam_truth,
@@ -248,6 +252,17 @@ def _check_path(m: SegmentMap, poses: FloatArray, kidnapped: NDArray[np.bool_]) 
             f"the robot's path crosses a wall near ({x:.2f}, {y:.2f}) at step {bad[0]}; "
             "after a kidnap the robot drives straight back to its route, so choose a kidnap that "
             "leaves the way back free")
+
+
+def _missing(cfg: ScenarioConfig, odom_t: FloatArray) -> NDArray[np.bool_]:
+    """Which odometry records fall in a gap (never the first: it anchors the frame)."""
+    out = np.zeros(len(odom_t), dtype=bool)
+    since = odom_t - cfg.start_time
+    for gap in cfg.odometry_gaps:
+        out |= (since >= gap.t) & (since < gap.t + gap.duration)
+    if len(out):
+        out[0] = False
+    return out
 
 
 def _check_kidnaps(cfg: ScenarioConfig) -> None:

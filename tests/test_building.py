@@ -1,0 +1,175 @@
+"""The generated buildings (fusion.sim.building): a valid floor plan and tour for every seed,
+the robot's faults as drawn, glass the laser sees through, and a sweep over seeds."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from fusion.bench.generated import outside_allowance, recovery_times
+from fusion.bench.spec import SpecError, load_spec
+from fusion.bench.sweep import run_sweep
+from fusion.sim import scenario_preset, simulate
+from fusion.sim.building import (
+    MIN_DOOR,
+    ROUTE_CLEARANCE,
+    WHEEL_SCALE_ERROR,
+    building_scenario,
+    draw_plan,
+)
+from fusion.sim.raycast import segment_segment_distance
+from fusion.sim.world import wall_segments
+from houghloc.segment_map import SegmentMap
+
+
+@pytest.fixture(autouse=True)
+def _maps_in_tmp(tmp_path, monkeypatch):
+    monkeypatch.setenv("HOUGHLOC_BUILDINGS", str(tmp_path / "buildings"))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_every_leg_of_the_tour_keeps_its_clearance(seed):
+    plan = draw_plan(np.random.default_rng(seed))
+    m = plan.segment_map("b")
+    ws, we = wall_segments(m)
+    tour = np.asarray(plan.tour)
+    legs = np.column_stack((tour, np.roll(tour, -1, axis=0)))  # the tour is a loop
+    d = segment_segment_distance(legs[:, :2], legs[:, 2:], ws, we)
+    assert d.min() >= ROUTE_CLEARANCE - 1e-9, (seed, d.min())
+    assert set(plan.glass) <= set(m.ids)
+
+
+def test_a_seed_draws_one_building_and_another_seed_another(tmp_path):
+    a, b = building_scenario(3), building_scenario(3)
+    assert a == b
+    c = building_scenario(4)
+    ma, mc = SegmentMap.from_yaml(a.map), SegmentMap.from_yaml(c.map)
+    assert len(ma) != len(mc) or not np.allclose(ma.starts, mc.starts)
+    assert scenario_preset("building", seed=3) == a
+
+
+@pytest.mark.parametrize("seed", [0, 1, 5])
+def test_the_faults_are_drawn_within_their_bounds(seed):
+    cfg = building_scenario(seed)
+    odo = cfg.odometry
+    assert abs(odo.left_scale_error) <= WHEEL_SCALE_ERROR
+    assert abs(odo.right_scale_error) <= WHEEL_SCALE_ERROR
+    assert 0.0 <= odo.turn_slip <= 0.05
+    assert len(cfg.odometry_gaps) == 1 and 1.0 <= cfg.odometry_gaps[0].duration <= 4.0
+    assert len(cfg.kidnaps) == 1
+    k = cfg.kidnaps[0]
+    assert 2.0 <= math.hypot(k.dx, k.dy) <= 4.0 and 20.0 <= abs(k.dtheta_deg) <= 45.0
+
+
+def test_a_run_has_its_gap_its_kidnap_and_glass_the_laser_sees_through():
+    seed = next(s for s in range(40) if building_scenario(s).transparent)
+    cfg = building_scenario(seed)
+    run = simulate(cfg)
+    # no odometry record inside the gap, and the records around it carry the motion
+    gap = cfg.odometry_gaps[0]
+    events = [e for e in run.events() if type(e).__name__ == "Odometry"]
+    t = np.array([e.t for e in events])
+    inside = (t >= gap.t) & (t < gap.t + gap.duration)
+    assert not inside.any()
+    assert np.diff(t).max() == pytest.approx(gap.duration, abs=2.0 / cfg.odom_rate)
+    # the kidnap moved the true pose between two records
+    k = int(np.flatnonzero(run.kidnapped)[0])
+    jump = run.odom_truth[k + 1] - run.odom_truth[k]
+    assert math.hypot(jump[0], jump[1]) > 1.9
+    # no beam ever ends on a glass wall
+    glass = np.flatnonzero(np.isin(run.map.ids, cfg.transparent))
+    assert not np.isin(run.scan_labels, glass).any()
+    # the wheels: each record's increment is the truth's, scaled within the drawn errors
+    assert np.all(np.isfinite(run.odom_pose))
+
+
+def test_turn_slip_makes_the_wheels_over_report_turns():
+    from fusion.sim.config import OdometryConfig
+    from fusion.sim.odometry import measured_motion
+
+    motion = np.array([[0.0, 0.01]] * 100 + [[0.01, 0.0]] * 100)  # a spin, then straight
+    clean = OdometryConfig(left_scale_error=0.0, right_scale_error=0.0, wheel_noise=0.0)
+    slip = clean.model_copy(update={"turn_slip": 0.04})
+    a = measured_motion(motion, clean, np.random.default_rng(0))
+    b = measured_motion(motion, slip, np.random.default_rng(0))
+    assert b[:100, 1].sum() == pytest.approx(1.04 * a[:100, 1].sum())
+    assert np.array_equal(a[100:], b[100:])  # driving straight, no slip
+
+
+def test_the_doors_are_wide_enough_for_the_robot():
+    for seed in range(8):
+        plan = draw_plan(np.random.default_rng(seed))
+        # every gap in the corridor's side walls is a door at least MIN_DOOR wide
+        for prefix, y in (("scor", 0.0), ("ncor", None)):
+            xs = sorted((min(a[0], b[0]), max(a[0], b[0])) for i, a, b in plan.walls
+                        if i.startswith(prefix))
+            gaps = [x1 - x0 for (_, x0), (x1, _) in itertools.pairwise(xs)]
+            assert all(g >= MIN_DOOR - 1e-9 for g in gaps), (seed, prefix, gaps, y)
+
+
+def test_recovery_is_right_and_staying_right():
+    t = np.arange(0.0, 30.0, 0.1)
+    lost = (t >= 10.0) & (t < 13.0)
+    lost |= (t >= 14.0) & (t < 14.5)  # right at 13 s, but not for 5 s
+    assert recovery_times(t, lost, [10.0]) == [pytest.approx(4.5)]
+    assert recovery_times(t, np.ones_like(t, dtype=bool), [10.0]) == [math.inf]
+    keep = outside_allowance(t, [10.0])
+    assert keep.sum() == len(t) - 50
+
+
+def test_a_spec_of_generated_runs_names_each_seed(tmp_path):
+    path = tmp_path / "spec.yaml"
+    path.write_text("generated:\n  - {scenario: building, seeds: [3, 5], duration: 30}\n")
+    spec = load_spec(path)
+    assert [r.name for r in spec.runs] == ["building-3", "building-4", "building-5"]
+    assert all(r.duration == 30 for r in spec.runs)
+    path.write_text("generated:\n  - {scenario: building, seeds: [5, 3]}\n")
+    with pytest.raises(SpecError, match="first <= last"):
+        load_spec(path)
+    path.write_text("runs:\n  - {name: x, scenario: building, log: a.log}\n")
+    with pytest.raises(SpecError, match="brings its own log"):
+        load_spec(path)
+
+
+def test_a_sweep_of_generated_buildings_scores_integrity_and_recovery(tmp_path):
+    path = tmp_path / "spec.yaml"
+    path.write_text("generated:\n  - {scenario: building, seeds: [0, 1], duration: 60}\n"
+                    "methods: [houghloc, odometry]\n")
+    outcome = run_sweep(load_spec(path), tmp_path / "out", workers=2, progress=False)
+    assert outcome.failed == 0 and outcome.ran == 4
+    rows = list(csv.DictReader((tmp_path / "out" / "results.csv").open()))
+    for r in rows:
+        assert r["status"] == "ok", r
+        assert int(r["scans"]) == 601
+        assert float(r["lost_outside_kidnap_frac"]) >= 0.0
+    mine = [r for r in rows if r["method"] == "houghloc"]
+    for r in mine:
+        assert 0.0 <= float(r["brier"]) <= 1.0
+        assert float(r["confident_wrong_frac"]) <= float(r["lost_frac"])
+    # dead reckoning does not report how sure it is
+    assert all(r["brier"] == "" for r in rows if r["method"] == "odometry")
+    summary = (tmp_path / "out" / "summary.md").read_text()
+    assert "## Integrity" in summary and "## Generated runs: goals" in summary
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_generated_run_simulates(seed):
+    run = simulate(building_scenario(seed))  # the path is checked against the walls there
+    assert len(run.scan_t) == 2401
+
+
+@pytest.mark.slow
+def test_every_benchmark_seed_simulates():
+    """The 100 benchmark seeds and CI's 50: a building, a tour and a kidnap whose way back is
+    clear (simulate checks the path), and a kidnap on all but a few."""
+    seeds = [*range(100), *range(1000, 1050)]
+    kidnapped = 0
+    for seed in seeds:
+        cfg = building_scenario(seed)
+        kidnapped += bool(cfg.kidnaps)
+        simulate(cfg)
+    assert kidnapped >= 0.95 * len(seeds)
