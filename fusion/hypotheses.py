@@ -216,6 +216,12 @@ class HypothesisBank:
     def __len__(self) -> int:
         return len(self.hypotheses)
 
+    @property
+    def contested(self) -> bool:
+        """Has a global match proposed rivals to the followed poses (only then can a leader's
+        weight say how likely it is)?"""
+        return self._contested
+
     def seed(self, t: float, odom: NDArray[np.float64], poses: list[NDArray[np.float64]],
              covs: list[NDArray[np.float64]], scores: list[float],
              priors: list[float] | None = None, origin: str = "global match") -> None:

@@ -6,7 +6,7 @@ distances. Scan odometry (:mod:`fusion.scan_odometry`) uses it to correct the wh
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -29,6 +29,16 @@ class IcpResult:
     delta: NDArray[np.float64]
     cov: NDArray[np.float64]
     overlap: float  # fraction of the current scan's points paired at the last iteration
+    weakest: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))
+    """the unit direction of translation the match observes least (the information matrix's
+    weakest translation axis)"""
+    support: float = 0.0
+    """how many points' worth of evidence the scene gives along ``weakest`` without the one
+    movable object that gives most: Σ wᵢ (nᵢ·u)² over the paired points, in units of a point
+    whose wall faces u squarely, less the largest sum of one object's points, an object being a
+    run of beams without a jump of ``max_neighbour_gap`` and at most :data:`MOVABLE_EXTENT`
+    across. A person walking beside the robot can carry a match along a corridor alone; a
+    direction the rest of the scene does not observe may be that person's motion."""
 
 
 def scan_normals(points: NDArray[np.float64], max_gap: float, radius: float,
@@ -84,25 +94,53 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
         return None
     previous = np.ascontiguousarray(previous, dtype=float)
     normals, usable = scan_normals(previous, config.max_neighbour_gap, config.normal_radius)
-    found, x, hessian, sigma2, overlap = _icp(
+    found, x, hessian, sigma2, overlap, paired_normals, weights = _icp(
         previous, normals, usable, np.ascontiguousarray(current, dtype=float),
         np.array(guess, dtype=float), config.iterations, config.max_pair_distance,
         config.final_pair_distance, config.huber, config.min_points)
     if not found:
         return None
     x[2] = wrap_scalar(x[2])
-    return IcpResult(x, sigma2 * np.linalg.inv(hessian), overlap)
+    weakest = np.linalg.eigh(hessian[:2, :2])[1][:, 0]
+    evidence = weights * (paired_normals @ weakest) ** 2
+    support = float(evidence.sum() - _largest_movable(current, evidence,
+                                                      config.max_neighbour_gap))
+    return IcpResult(x, sigma2 * np.linalg.inv(hessian), overlap, weakest, support)
+
+
+MOVABLE_EXTENT = 1.0
+"""m: the largest object that may move between two scans (a person, a cart); a longer run of
+beams is a wall or furniture too large to carry."""
+
+
+def _largest_movable(points: NDArray[np.float64], evidence: NDArray[np.float64],
+                     max_gap: float) -> float:
+    """The most evidence one movable object gives: objects are runs of beams without a jump of
+    ``max_gap``; those whose bounding box's diagonal is at most MOVABLE_EXTENT count."""
+    points = np.asarray(points, dtype=float)
+    if len(points) == 0:
+        return 0.0
+    jumps = np.flatnonzero(np.hypot(*np.diff(points, axis=0).T) > max_gap) + 1
+    starts = np.concatenate(([0], jumps))
+    low = np.minimum.reduceat(points, starts, axis=0)
+    high = np.maximum.reduceat(points, starts, axis=0)
+    movable = np.hypot(*(high - low).T) <= MOVABLE_EXTENT
+    per_object = np.add.reduceat(evidence, starts)
+    return float(per_object[movable].max()) if movable.any() else 0.0
 
 
 @njit
 def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
          x: NDArray, iterations: int, max_pair: float, final_pair: float, huber: float,
-         min_points: int) -> tuple[bool, NDArray, NDArray, float, float]:
+         min_points: int) -> tuple[bool, NDArray, NDArray, float, float, NDArray, NDArray]:
     """The Gauss–Newton iterations of :func:`point_to_line_icp`: (found, x, JᵀWJ + damping,
-    σ̂², overlap). Nearest neighbours come from a grid of the previous scan (:func:`_nearest`)."""
+    σ̂², overlap, each current point's paired normal and Huber weight at the last iteration,
+    zero where unpaired). Nearest neighbours come from a grid of the previous scan
+    (:func:`_nearest`)."""
     index = _cell_index(previous, _grid_cell(previous, final_pair))
     n = len(current)
     residual, weight = np.zeros(n), np.zeros(n)
+    paired_normals = np.zeros((n, 2))
     hessian = np.eye(3)
     shrink = max(1.0, 0.6 * iterations)
     paired = 0
@@ -119,9 +157,11 @@ def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
             j = _nearest(previous, index, qx, qy, reach)
             if j < 0 or not usable[j]:
                 residual[i] = weight[i] = 0.0
+                paired_normals[i, 0] = paired_normals[i, 1] = 0.0
                 continue
             paired += 1
             nx, ny = normals[j, 0], normals[j, 1]
+            paired_normals[i, 0], paired_normals[i, 1] = nx, ny
             r = nx * (qx - previous[j, 0]) + ny * (qy - previous[j, 1])
             ax, ay = qx - x[0], qy - x[1]  # ∂(R q)/∂θ = (−(Rq)_y, (Rq)_x)
             jac = (nx, ny, ny * ax - nx * ay)
@@ -132,7 +172,7 @@ def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
                 for b in range(3):
                     hessian[a, b] += jac[a] * jac[b] * w
         if paired < min_points:
-            return False, x, hessian, 0.0, 0.0
+            return False, x, hessian, 0.0, 0.0, paired_normals, weight
         hessian += _DAMPING * np.eye(3)
         # damped: along a featureless corridor one direction has no information; the step
         # leaves it alone and the covariance calls it unknown (σ² ~ σ̂²/damping)
@@ -142,7 +182,7 @@ def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
             break
     dof = max(1, paired - 3)
     sigma2 = max((weight * residual**2).sum() / dof, 1e-6)
-    return True, x, hessian, sigma2, paired / n
+    return True, x, hessian, sigma2, paired / n, paired_normals, weight
 
 
 GRID_CELLS = 262_144

@@ -39,6 +39,9 @@ from houghloc.matching import gate_threshold
 # The wheels' noise while they report no motion is zero; this floor (σ = 1 mm, 0.06°) keeps its
 # information finite, and still lets the wheels outweigh a match when the robot stands.
 _STILL_NOISE = 1e-6 * np.eye(3)
+# The variance (m²) given a direction of the match that too few points observe: the match's
+# information there vanishes next to the wheels' (whose σ per step is millimetres to centimetres)
+_UNOBSERVED = 1e4
 # Point-to-line ICP converges on walls from a heading within about half of this: when the wheels
 # missed a turn, the match is started from headings this far apart over the turn it could be.
 _HEADING_START_SPACING = math.radians(20.0)
@@ -134,6 +137,8 @@ class ScanOdometry:
         self._floor = np.diag(floors)
         self._robust_limit = (math.inf if config.robust_quantile is None
                               else gate_threshold(config.robust_quantile, 3))
+        self._thin_limit = (math.inf if config.robust_quantile is None
+                            else gate_threshold(config.robust_quantile, 1))
 
     @property
     def reference_time(self) -> float:
@@ -233,8 +238,7 @@ class ScanOdometry:
                   + self.motion.noise(self._scaled(raw_step)))[:2, :2]
         return distance, float(along @ icp.delta[:2]), float(along @ spread @ along)
 
-    def _fuse(self, wheel_step: NDArray[np.float64],
-              icp: IcpResult | None
+    def _fuse(self, wheel_step: NDArray[np.float64], icp: IcpResult | None
               ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """δ = Q (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s) with Q = (Q_w⁻¹ + Q_s⁻¹)⁻¹, the information-weighted
         increment and its covariance; None when the match is unusable or too far from the
@@ -256,6 +260,18 @@ class ScanOdometry:
         if self._unmeasured > 0.0:
             wheel_cov = wheel_cov + self.motion.jump_noise(self._unmeasured)
         scan_cov = icp.cov * c.noise_scale + self._floor
+        if icp.support < c.min_points:
+            # Without its strongest object, the scene gives fewer points' worth of evidence
+            # than a match needs along the match's weakest direction (a person walking along a
+            # featureless corridor, a door frame; IcpResult.support). Where that object agrees
+            # with the wheels it refines the step; where it disagrees beyond the joint noise,
+            # its own motion explains it as well as a slip of the wheels, and nothing else in
+            # the scan decides: the wheels' increment is kept along that direction (and the
+            # robust step below does not blame the wheels for it).
+            u = np.array((icp.weakest[0], icp.weakest[1], 0.0))
+            along = float(gap @ u)
+            if along * along > self._thin_limit * float(u @ (wheel_cov + scan_cov) @ u):
+                scan_cov = scan_cov + _UNOBSERVED * np.outer(u, u)
         if c.robust_quantile is not None:
             # the two disagree beyond their joint noise: the wheels slipped or misreport (a good
             # match does not err by decimetres), so their noise is scaled up until they agree

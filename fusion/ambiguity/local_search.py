@@ -37,6 +37,8 @@ class Found:
     pose: NDArray[np.float64] | None = None
     cov: NDArray[np.float64] | None = None
     fit: float = 0.0
+    along_kept: bool = False
+    """the pose's position along a corridor is the guess's: the scan did not observe it"""
 
 
 @dataclass
@@ -94,7 +96,7 @@ class LocalSearch:
         if not found:
             return Found(result)
         found.sort(key=lambda f: -f[0])
-        fit, pose, cov = found[0]
+        fit, pose, cov, along_kept = found[0]
         rivals = [f for f in found[1:] if f[0] > fit - self.config.local_rival_margin
                   and not _same_pose(f[1], pose)]
         if (fit < guess_fit + self.config.local_fit_gain
@@ -103,7 +105,8 @@ class LocalSearch:
                 or not self._likelier(pose, guess, points, kinds)):
             return Found(result)
         self.counts["local_fixes"] += 1
-        return Found(result, np.asarray(pose, float), np.array(cov, dtype=float), fit)
+        return Found(result, np.asarray(pose, float), np.array(cov, dtype=float), fit,
+                     along_kept)
 
     def _likelier(self, pose: NDArray, guess: NDArray, points: NDArray,
                   kinds: tuple[str, ...]) -> bool:
@@ -153,20 +156,21 @@ def _heading_reach(least: float, guess_cov: NDArray | None, probability: float) 
 
 
 def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = 0.3
-              ) -> tuple[NDArray, NDArray] | None:
+              ) -> tuple[NDArray, NDArray, bool] | None:
     """A local re-search candidate from a fix tracked from it: a full fix as it is; one that
     observes the heading and the position across the walls in view only (a corridor, or one
     wall of a cluttered room) keeps the guess's position along them, ``sigma_along`` uncertain
     (the fix cannot say where along the corridor the start was, so every start along it gives
-    the same candidate and none of them is a rival). None when ambiguous or without heading."""
+    the same candidate and none of them is a rival). None when ambiguous or without heading;
+    the flag says whether the position along was kept."""
     if fix.ambiguous or fix.rank < 2:
         return None
     if fix.rank == 3:
-        return fix.pose, fix.cov
+        return fix.pose, fix.cov, False
     v = fix.unobservable  # 3×1, in x, y
     along = v @ v.T
     pose = fix.pose - along @ (fix.pose - guess)
-    return pose, fix.cov + (sigma_along**2 - UNOBSERVED_VARIANCE) * along
+    return pose, fix.cov + (sigma_along**2 - UNOBSERVED_VARIANCE) * along, True
 
 
 def _sweep(guess: NDArray, radius_xy: float, radius_theta: float,

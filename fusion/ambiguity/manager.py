@@ -145,9 +145,19 @@ class AmbiguityManager:
                 f"local re-search: moved {math.hypot(shift[0], shift[1]):.2f} m, "
                 f"{math.degrees(wrap_scalar(shift[2])):.1f}°; {found.fit:.2f} of the points on "
                 f"walls (guess {guess_fit:.2f})"))
-        cov = found.cov
-        return Decision(found.pose, 0.5 * (cov + cov.T) + reinit_floor(self.config),
-                        found.result)
+        cov = 0.5 * (found.cov + found.cov.T) + reinit_floor(self.config)
+        if found.along_kept and odom is not None and self.config.hypotheses is not None:
+            # The search explains a motion the odometry did not report, but the scan did not
+            # observe the position along the corridor in view: the pose found keeps the
+            # guess's, and the same motion may have carried the robot along it, to a
+            # look-alike place beyond the neighbourhood searched (a door further on). The pose
+            # is followed as tracking's belief while a global match of the next views proposes
+            # its rivals, and taken when the scans single it out (mode_probability is 0 until
+            # then).
+            self.belief.prior = (found.pose.copy(), cov.copy(), np.asarray(odom, float).copy())
+            self._go(t, State.COLLECTING, "local re-search: the odometry missed a motion; a "
+                     "global match contests the pose found")
+        return Decision(found.pose, cov, found.result)
 
     def tracking_step(self, t: float, status: ScanStatus, cov: NDArray,
                       pose: NDArray | None = None, odom: NDArray | None = None,
@@ -206,12 +216,13 @@ class AmbiguityManager:
     def mode_probability(self) -> float:
         """The probability that the reported pose's filter is around the right place at all
         (:mod:`fusion.integrity`): 1 while tracking, the leader's weight among the followed
-        hypotheses, 0 while collecting views with none, or lost."""
+        hypotheses once a global match has proposed rivals, 0 before that, while collecting
+        views with none, or lost."""
         if self.state is State.TRACKING:
             return 1.0
         bank = self.relocalization.bank
-        if bank is None or not len(bank):
-            return 0.0
+        if bank is None or not len(bank) or not bank.contested:
+            return 0.0  # no hypothesis, or no rival proposed yet: nothing to weigh it against
         return float(bank.leader.weight)
 
     # ------------------------------------------------------------------ transitions
