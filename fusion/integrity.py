@@ -13,9 +13,8 @@ event, *confident-wrong*. The probability is the product of two factors:
   bounds). A corridor whose position along it no fix observes has a wide σ along it, and this
   factor says so.
 
-``localized`` (a yes/no for a navigation stack) is the probability above
-:data:`LOCALIZED_PROBABILITY` (:func:`is_localized`): of two poses that fit equally well,
-neither is.
+``localized`` (a yes/no for a navigation stack) is the probability at or above
+:data:`LOCALIZED_PROBABILITY` (:func:`is_localized`).
 """
 
 from __future__ import annotations
@@ -28,13 +27,15 @@ from numpy.typing import NDArray
 LOCALIZED_POSITION = 0.3
 """m: a pose this close to the truth (and within LOCALIZED_HEADING_DEG) is right."""
 LOCALIZED_HEADING_DEG = 5.0
-LOCALIZED_PROBABILITY = 0.5
-"""The probability above which a pose is reported localized: more likely right than not."""
+LOCALIZED_PROBABILITY = 0.95
+"""The probability at or above which a pose is reported localized: right 19 times in 20, the
+odds at which a followed hypothesis is taken (``hypotheses.accept_probability``). Two look-alike
+places that the scans weigh about equally are each a coin's toss: neither is localized."""
 
 
 def is_localized(probability: float) -> bool:
     """Is a pose with this probability reported localized?"""
-    return probability > LOCALIZED_PROBABILITY
+    return probability >= LOCALIZED_PROBABILITY
 
 # Gauss–Legendre nodes on [0, 1] for the disc integral below (48 nodes; one call costs a few
 # microseconds)
@@ -100,7 +101,7 @@ def integrity_scores(probability: NDArray[np.float64], right: NDArray[np.bool_] 
     out: dict[str, object] = {"scans": len(p)}
     if len(p) == 0:
         return out
-    reported = p > LOCALIZED_PROBABILITY
+    reported = p >= LOCALIZED_PROBABILITY
     out["localized_fraction"] = float(np.mean(reported))
     out["mean_probability"] = float(np.mean(p))
     if right is None or len(right) != len(p):

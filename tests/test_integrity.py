@@ -64,14 +64,14 @@ def test_the_probability_is_the_mode_times_the_spread():
 
 
 def test_scores_against_known_outcomes():
-    p = np.array([0.99, 0.99, 0.2, 0.0, 0.7])
-    right = np.array([True, False, False, False, True])
+    p = np.array([0.99, 0.99, 0.2, 0.0, 0.7, 0.96])
+    right = np.array([True, False, False, False, True, True])
     s = integrity_scores(p, right)
-    assert s["localized_fraction"] == pytest.approx(3 / 5)
-    assert s["confident_wrong"] == pytest.approx(1 / 5)
+    assert s["localized_fraction"] == pytest.approx(3 / 6)  # 0.7 is no 0.95
+    assert s["confident_wrong"] == pytest.approx(1 / 6)
     assert s["brier"] == pytest.approx(np.mean((p - right) ** 2))
     bins = {(b["from"], b["to"]): b for b in s["reliability"]}
-    assert bins[(0.9, 0.99)]["scans"] == 0 and bins[(0.99, 1.0)]["scans"] == 2
+    assert bins[(0.9, 0.99)]["scans"] == 1 and bins[(0.99, 1.0)]["scans"] == 2
     assert bins[(0.99, 1.0)]["right"] == 0.5
     assert "brier" not in integrity_scores(p)  # no truth: only what was reported
 

@@ -387,3 +387,40 @@ def test_the_grids_nearest_point_is_the_brute_force_one(seed: int, n: int, reach
         within = np.flatnonzero(d2 < reach * reach)
         expected = -1 if len(within) == 0 else int(within[np.argmin(d2[within])])
         assert _nearest(points, index, x, y, reach) == expected
+
+
+def _person(centre: tuple[float, float], radius: float = 0.2, sides: int = 16) -> np.ndarray:
+    """A person as a polygon of ``sides`` walls around ``centre``."""
+    a = np.linspace(0.0, 2 * math.pi, sides + 1)
+    x, y = centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a)
+    return np.column_stack((x[:-1], y[:-1], x[1:], y[1:]))
+
+
+def test_a_person_walking_along_a_featureless_corridor_does_not_carry_the_match() -> None:
+    """The robot drives 5 cm along the corridor, its wheels say so; a person 1.2 m ahead walks
+    8 cm towards it meanwhile. The match, carried by the person alone, says the robot drove
+    13 cm; the wheels' increment is kept along the corridor."""
+    start = np.array([0.0, 0.0, 0.0])
+    motion = np.array([0.05, 0.0, 0.0])
+    ahead = (1.2, 0.0)
+    scan_odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    scan_odometry.on_wheels(0.0, 0.0, 0.0)
+    scan_odometry.match(0.0, scan_points(np.vstack((CORRIDOR, _person(ahead))), start))
+    scan_odometry.on_wheels(*motion)
+    moved = np.vstack((CORRIDOR, _person((ahead[0] - 0.08, ahead[1]))))
+    icp = point_to_line_icp(scan_points(np.vstack((CORRIDOR, _person(ahead))), start),
+                            scan_points(moved, compose(start, motion)), motion, CONFIG)
+    assert icp is not None and icp.delta[0] > 0.12  # the match alone: both motions added
+    assert icp.support < CONFIG.min_points
+    correction = scan_odometry.match(0.1, scan_points(moved, compose(start, motion)))
+    assert correction is not None
+    assert correction.pose[0] == pytest.approx(0.05, abs=0.005)
+
+
+def test_an_end_wall_is_no_movable_object_and_still_corrects_the_wheels() -> None:
+    """The same corridor closed by a wall 2 m ahead: the wheels read 15 cm too far, the wall
+    (2 m across: nobody carries it) says so, and the match wins along the corridor."""
+    closed = np.vstack((CORRIDOR, [[2.0, -1.0, 2.0, 1.0]]))
+    pose, _ = wheels_then_scan(closed, np.array([0.0, 0.0, 0.0]), np.array([0.05, 0.0, 0.0]),
+                               np.array([0.20, 0.0, 0.0]))
+    assert pose[0] == pytest.approx(0.05, abs=0.01)

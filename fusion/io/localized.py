@@ -5,8 +5,9 @@ the trajectory's order (:mod:`fusion.integrity`)::
     12.300000,0.999871,1,accepted
 
 ``probability``: that the pose is within 0.3 m and 5° of the truth; ``localized``: 1 when it is
-above one half; ``status``: what became of the scan. Each line is flushed as it is written, as
-the trajectory's are, so an interrupted run keeps every line it reported.
+at least 0.95 (:data:`fusion.integrity.LOCALIZED_PROBABILITY`); ``status``: what became of the
+scan. Each line is flushed as it is written, as the trajectory's are, so an interrupted run
+keeps every line it reported.
 """
 
 from __future__ import annotations
