@@ -200,3 +200,29 @@ def test_a_kidnap_along_a_corridor_is_not_tracked_at_a_look_alike_door():
     after = (t >= kidnap) & (t < kidnap + 15.0)
     scores = integrity_scores(done.result.localized_probability[after], ~lost[after])
     assert scores["confident_wrong"] <= 0.02
+
+
+@pytest.mark.slow
+def test_held_out_buildings(tmp_path):
+    """Seeds 1000–1049, never tuned on, run here only: the defaults' figures may not fall back
+    below what they were when these guards were set (measured: median ATE 51.6 cm and lost
+    7.2 % outside the kidnaps' 5 s, confident-wrong 1.2 %, 23 of 50 kidnaps recovered within
+    5 s; docs/benchmark.md#generated-buildings). The issue's goals are further: 2 cm, 1 %,
+    0.1 %, 95 %. (Their cost, 10.5 ms a scan at worst, is the benchmark's to print.)"""
+    import statistics
+
+    from tests.conftest import REPO
+
+    spec = load_spec(REPO / "benchmarks" / "buildings-ci.yaml")
+    spec = spec.model_copy(update={"methods": [m for m in spec.methods if m == "houghloc"]})
+    outcome = run_sweep(spec, tmp_path / "out", workers=2, progress=False)
+    assert outcome.failed == 0 and outcome.ran == 50
+    rows = list(csv.DictReader((tmp_path / "out" / "results.csv").open()))
+
+    def column(name):
+        return [float(r[name]) for r in rows if r[name] != ""]
+
+    assert statistics.median(column("ate_outside_kidnap_m")) <= 0.75
+    assert statistics.median(column("lost_outside_kidnap_frac")) <= 0.10
+    assert statistics.median(column("confident_wrong_frac")) <= 0.025
+    assert sum(v <= 5.0 for v in column("recovery_s")) >= 18
