@@ -379,7 +379,8 @@ def test_local_search_candidate_in_a_corridor_keeps_the_guess_along_it(office):
     """Tracked from a start moved along a corridor (only its two walls in view), a fix observes
     the heading and the position across it: the candidate takes those and keeps the guess's
     position along the corridor, with a finite uncertainty there, so starts along the corridor
-    do not become rivals of each other. An ambiguous or empty fix is no candidate."""
+    do not become rivals of each other, and says it kept it. An ambiguous or empty fix is no
+    candidate."""
     from fusion.ambiguity.local_search import _polished
 
     true = np.array([5.5, 6.2, 0.0])
@@ -392,7 +393,10 @@ def test_local_search_candidate_in_a_corridor_keeps_the_guess_along_it(office):
         start = guess + np.array([start_x, 0.0, 0.0])
         fix = localize_scan(points, office, start, HoughConfig(), pose_cov=prior)
         assert fix.rank == 2 and not fix.ambiguous, fix.reason
-        pose, cov = _polished(fix, guess)
+        polished = _polished(fix, guess)
+        assert polished is not None
+        pose, cov, along_kept = polished
+        assert along_kept  # the manager has a global match contest it
         assert pose[0] == pytest.approx(guess[0], abs=1e-6)
         assert abs(pose[1] - true[1]) < 0.02 and abs(pose[2] - true[2]) < math.radians(0.5)
         assert cov[0, 0] == pytest.approx(0.09, rel=0.01) and np.linalg.eigvalsh(cov).max() < 1

@@ -42,9 +42,11 @@ Timestamps that go backwards are passed on unchanged, in file order, and counted
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 
 from fusion.events import Event, ReadStats
@@ -64,6 +66,32 @@ log = logging.getLogger(__name__)
 
 """How many bad records per file are reported through ``logging`` (all are counted)."""
 
+class StampClock(StrEnum):
+    """Where a record's time comes from."""
+
+    STAMPS = "stamps"
+    """its ``ipc_timestamp``, as it is"""
+    NEGATED = "negated"
+    """its ``ipc_timestamp`` negated: a log whose stamps run backwards throughout (written with
+    the sign flipped) still has the right intervals"""
+    ORDER = "order"
+    """the records' order, at :data:`NOMINAL_ODOMETRY_RATE` (or the time its increment takes at
+    :data:`NOMINAL_PACE`, when longer): a log whose stamps cannot order its records (all zero,
+    or every record one or two stamps, as ``%g`` prints Unix time)"""
+
+
+NOMINAL_ODOMETRY_RATE = 5.0
+"""Hz: odometry records a second assumed when a log's stamps cannot be used; each laser record
+is taken at its odometry record's time. Robots publish odometry at 5–50 Hz: a clock that runs
+slow only makes the motion look slower than it was, which nothing rejects (the motion model is
+per metre and radian), where one that runs fast makes real motion look like jumps beyond
+``filter.motion.max_speed``."""
+NOMINAL_PACE = (0.5, 1.0)
+"""m/s and rad/s: a robot indoors drives no faster, on the clock kept from the records' order;
+a record whose increment is larger is taken as that much later."""
+MIN_STAMPS_JUDGED = 20
+"""records read ahead before a log's stamps are judged unusable"""
+
 SNIFF_LINES = 20000
 """Lines read ahead to detect the log's conventions (corrected or raw, odometry source)."""
 
@@ -75,6 +103,8 @@ class CarmenConventions:
     """ODOM lines are re-anchored on corrected poses; laser poses are references."""
     laser_odometry: bool
     """No ODOM records: odometry comes from the laser records' ``odom_x odom_y odom_theta``."""
+    clock: StampClock = StampClock.STAMPS
+    """How the records' times are read (:class:`StampClock`)."""
 
 
 @dataclass
@@ -130,8 +160,16 @@ def read_carmen(
     if laser_odometry is None:
         laser_odometry = detected.laser_odometry
     conventions = CarmenConventions(
-        corrected=corrected, laser_odometry=laser_odometry and not corrected
+        corrected=corrected, laser_odometry=laser_odometry and not corrected,
+        clock=detected.clock,
     )
+    if conventions.clock is StampClock.NEGATED:
+        log.warning("%s: its timestamps run backwards throughout (%s): read negated, which keeps "
+                    "their intervals", path, detected.why)
+    elif conventions.clock is StampClock.ORDER:
+        log.warning("%s: its timestamps cannot order its records (%s): the records' order is "
+                    "used instead, at a nominal %g odometry records a second", path,
+                    detected.why, NOMINAL_ODOMETRY_RATE)
     return CarmenLog(path, conventions, FlaserSpacing(spacing), float(no_return_range))
 
 
@@ -141,9 +179,33 @@ def _reset(stats: ReadStats) -> None:
     stats.kinds.clear()
 
 
-def _sniff(path: Path) -> CarmenConventions:
+@dataclass(frozen=True, slots=True)
+class _Sniffed:
+    corrected: bool
+    laser_odometry: bool
+    clock: StampClock
+    why: str
+
+
+def _judge_stamps(stamps: list[float]) -> tuple[StampClock, str]:
+    """Can these stamps (the records' read ahead, re-anchoring zeros left out) order a log?"""
+    if len(stamps) < MIN_STAMPS_JUDGED:
+        return StampClock.STAMPS, ""
+    distinct = sorted(set(stamps))
+    if len(distinct) <= 2:
+        shown = " and ".join(f"{v:g}" for v in distinct)
+        return StampClock.ORDER, f"its first {len(stamps)} records carry only {shown}"
+    steps = [b - a for a, b in itertools.pairwise(stamps) if b != a]
+    if steps and sum(d < 0 for d in steps) == len(steps):
+        return StampClock.NEGATED, (f"its first {len(stamps)} records run from {stamps[0]:g} to "
+                                    f"{stamps[-1]:g} s")
+    return StampClock.STAMPS, ""
+
+
+def _sniff(path: Path) -> _Sniffed:
     """Read the first lines to tell CARMEN from other files and detect the conventions."""
     odom = laser = anchors = known = nonblank = stamped = 0
+    stamps: list[float] = []
     lines_since_laser = None
     with open_text_log(path) as f:
         for number, line in enumerate(f, start=1):
@@ -158,6 +220,11 @@ def _sniff(path: Path) -> CarmenConventions:
             kind = tokens[0]
             if kind in _KNOWN_RECORDS:
                 known += 1
+            if kind in _LASER_RECORDS or kind == "ODOM":
+                stamp = _stamp_of(line)  # every record ends ipc_timestamp ipc_hostname logger_t
+                anchor = kind == "ODOM" and lines_since_laser is not None and lines_since_laser < 3
+                if stamp is not None and not (anchor and stamp == 0.0 and stamped):
+                    stamps.append(stamp)
             if kind in _LASER_RECORDS:
                 laser += 1
                 lines_since_laser = 0
@@ -179,8 +246,18 @@ def _sniff(path: Path) -> CarmenConventions:
     if known == 0:
         raise LogError(path, "not a CARMEN log (no ODOM/FLASER/ROBOTLASER1/PARAM record found)")
     # a log whose stamps are all zero has no anchors, only unstamped readings
-    return CarmenConventions(corrected=anchors > 0 and stamped > 0,
-                             laser_odometry=odom == 0 and laser > 0)
+    clock, why = _judge_stamps(stamps)
+    return _Sniffed(corrected=anchors > 0 and stamped > 0, laser_odometry=odom == 0 and laser > 0,
+                    clock=clock, why=why)
+
+
+def _stamp_of(line: str) -> float | None:
+    tokens = line.split()
+    try:
+        value = float(tokens[-3])
+    except (IndexError, ValueError):
+        return None
+    return value if value == value and abs(value) != float("inf") else None
 
 
 def _odom_time(line: str) -> float | None:

@@ -123,6 +123,9 @@ class CarmenParser:
         self._laser_pose: NDArray[np.float64] | None = None  # pose of a laser record not yet
         # followed by an ODOM line (the next ODOM may be its re-anchoring line)
         self._raw_t = -math.inf  # time of the last emitted raw pose
+        self._clock = source.conventions.clock
+        self._clock_t = 0.0  # a clock kept from the records' order (StampClock.ORDER)
+        self._clock_pose: NDArray[np.float64] | None = None
 
     def events(self, f: TextIO) -> Iterator[Event]:
         path = self.source.path
@@ -196,7 +199,7 @@ class CarmenParser:
         _need(tokens, 9, "ODOM")
         pose = _pose(tokens, 1)
         if not self.corrected:
-            return [_odometry(_time(tokens[7]), pose, number)]
+            return [_odometry(self._time(tokens[7], pose), pose, number)]
         laser_pose, self._laser_pose = self._laser_pose, None
         if laser_pose is not None and np.array_equal(pose, laser_pose):
             # The re-anchoring line right after a laser record repeats its corrected pose. Its
@@ -204,8 +207,7 @@ class CarmenParser:
             # it is recognised by the repeated pose and its timestamp is ignored.
             self._anchor = pose
             return []
-        t = _time(tokens[7])
-        if t == 0.0:
+        if _time(tokens[7]) == 0.0:
             self._anchor = pose  # a re-anchoring line: the reference pose, not motion
             return []
         if self._raw is None:
@@ -214,6 +216,7 @@ class CarmenParser:
             base = self._anchor if self._anchor is not None else self._prev_logged
             assert base is not None  # logged with the first raw pose
             raw = compose(self._raw, relative(base, pose))
+        t = self._time(tokens[7], raw)
         self._raw, self._prev_logged, self._anchor = raw, pose, None
         self._raw_t = t
         return [_odometry(t, raw, number)]
@@ -224,7 +227,7 @@ class CarmenParser:
         ranges = self._valid_ranges(tokens[2 : 2 + n], number)
         pose = _pose(tokens, 2 + n)
         odom = _pose(tokens, 2 + n + 3)
-        t = _time(tokens[2 + n + 6])
+        t = self._time(tokens[2 + n + 6], odom if self.laser_odometry else None)
         angles = self._angles.get(n)
         if angles is None:
             angles = self._angles[n] = flaser_angles(n, self.source.spacing)
@@ -249,7 +252,7 @@ class CarmenParser:
         _need(tokens, k + 13, f"ROBOTLASER1 with {n} beams and {m} remissions")
         ranges = self._valid_ranges(tokens[9 : 9 + n], number)
         robot = _pose(tokens, k + 3)
-        t = _time(tokens[k + 11])
+        t = self._time(tokens[k + 11], robot if self.laser_odometry else None)
         angles = self._angles.get((start, resolution, n))
         if angles is None:
             angles = start + resolution * np.arange(n, dtype=np.float64)
@@ -294,7 +297,30 @@ class CarmenParser:
     def _truepos(self, tokens: list[str]) -> list[Event]:
         _need(tokens, 9, "TRUEPOS")
         pose = _pose(tokens, 1)
-        return [Truth(_time(tokens[7]), *pose.tolist())]
+        return [Truth(self._time(tokens[7], None), *pose.tolist())]
+
+    def _time(self, text: str, odometry: NDArray[np.float64] | None) -> float:
+        """A record's time by the log's clock (:class:`fusion.io.carmen.StampClock`).
+        ``odometry``: the record's odometry pose, when it carries the odometry; such a record
+        advances a clock kept from the records' order, by a nominal interval, or by the time
+        the robot needs to drive the increment since the last one at a nominal pace when that
+        is longer (a driver that stalled for seconds reports all the motion at once)."""
+        from fusion.io.carmen import NOMINAL_ODOMETRY_RATE, NOMINAL_PACE, StampClock
+
+        t = _time(text)
+        if self._clock is StampClock.NEGATED:
+            return -t
+        if self._clock is not StampClock.ORDER:
+            return t
+        if odometry is not None:
+            step = 1.0 / NOMINAL_ODOMETRY_RATE
+            if self._clock_pose is not None:
+                dx, dy, dth = relative(self._clock_pose, odometry)
+                step = max(step, math.hypot(dx, dy) / NOMINAL_PACE[0],
+                           abs(dth) / NOMINAL_PACE[1])
+            self._clock_t += step
+            self._clock_pose = odometry
+        return self._clock_t
 
 
 def _looks_like_record_type(token: str) -> bool:

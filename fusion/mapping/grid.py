@@ -133,7 +133,11 @@ def read_reference_scans(path: str | Path, max_scans: int | None = None) -> list
     scans = (e for e in events if isinstance(e, Scan) and e.reference is not None)
     selected = list(islice(scans, max_scans)) if max_scans is not None else list(scans)
     if not selected:
-        raise ValueError(f"{path}: no scan with a reference pose (is it a corrected log?)")
+        raise ValueError(
+            f"{path}: no scan with a reference pose: it reads as a raw log (no ODOM record "
+            "stamped 0 re-anchors the odometry on a laser record's pose, as a corrected log's "
+            "do), so its laser poses are odometry; map build needs a corrected log (e.g. "
+            "GMapping's) or a map_server grid (--grid)")
     return selected
 
 
