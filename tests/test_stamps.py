@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from fusion.config import LocalizerConfig
-from fusion.events import Odometry, Scan
 from fusion.evaluation import ATE, Trajectory
+from fusion.events import Odometry, Scan
 from fusion.io.carmen import NOMINAL_ODOMETRY_RATE, StampClock, read_carmen
 from fusion.run_log import open_source, run_log
 from fusion.sim import scenario_preset, simulate, write_run
