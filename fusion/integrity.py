@@ -6,8 +6,9 @@ event, *confident-wrong*. The probability is the product of two factors:
 
 * **the mode** — is the filter's Gaussian around the right place at all? While tracking from a
   given pose or a pose taken from the followed hypotheses, the filter's own evidence is all
-  there is: 1. While hypotheses are followed, the leader's weight (its posterior among them).
-  Collecting views with no hypothesis, or lost: 0.
+  there is: 1. While hypotheses are followed, the leader's weight (its posterior among them)
+  once a global match has proposed rivals to it; before that, and while collecting views with
+  no hypothesis or lost: 0 (``AmbiguityManager.mode_probability``).
 * **the spread** — the Gaussian mass ``P(‖e_xy‖ ≤ r) · P(|e_θ| ≤ h)`` of the filter's
   covariance, position and heading taken as independent (their correlation is small next to the
   bounds). A corridor whose position along it no fix observes has a wide σ along it, and this
@@ -23,9 +24,11 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import erf
 
 LOCALIZED_POSITION = 0.3
-"""m: a pose this close to the truth (and within LOCALIZED_HEADING_DEG) is right."""
+"""m: a pose this close to the truth (and within LOCALIZED_HEADING_DEG) is right; farther, it
+is lost (the benchmark's and ``houghloc eval``'s bound, fusion.evaluation.LostFraction)."""
 LOCALIZED_HEADING_DEG = 5.0
 LOCALIZED_PROBABILITY = 0.95
 """The probability at or above which a pose is reported localized: right 19 times in 20, the
@@ -43,12 +46,6 @@ _NODES, _WEIGHTS = np.polynomial.legendre.leggauss(48)
 _NODES, _WEIGHTS = 0.5 * (_NODES + 1.0), 0.5 * _WEIGHTS
 
 
-def _erf(x: NDArray[np.float64]) -> NDArray[np.float64]:
-    from scipy.special import erf
-
-    return np.asarray(erf(x), dtype=float)
-
-
 def disc_probability(cov_xy: NDArray[np.float64], radius: float) -> float:
     """``P(‖e‖ ≤ r)`` for ``e ~ N(0, cov_xy)`` (2×2). Along the covariance's axes (σ₁ ≥ σ₂)
     it is ``∫₋ᵣʳ φ(u/σ₁)/σ₁ · erf(√(r² − u²)/(√2 σ₂)) du``; with ``u = r sin φ`` the square root
@@ -61,7 +58,7 @@ def disc_probability(cov_xy: NDArray[np.float64], radius: float) -> float:
         return 0.0
     phi = 0.5 * math.pi * _NODES
     u, half_chord = radius * np.sin(phi), radius * np.cos(phi)
-    inner = _erf(half_chord / (math.sqrt(2.0) * s2))
+    inner = erf(half_chord / (math.sqrt(2.0) * s2))
     density = np.exp(-0.5 * (u / s1) ** 2) / (math.sqrt(2.0 * math.pi) * s1)
     integral = 0.5 * math.pi * np.sum(_WEIGHTS * density * inner * half_chord)
     return float(min(1.0, 2.0 * integral))

@@ -116,6 +116,9 @@ def test_recovery_is_right_and_staying_right():
     lost = (t >= 10.0) & (t < 13.0)
     lost |= (t >= 14.0) & (t < 14.5)  # right at 13 s, but not for 5 s
     assert recovery_times(t, lost, [10.0]) == [pytest.approx(4.5)]
+    # right for the last 2.9 s only: to the end of the run counts as staying right
+    assert recovery_times(t, (t >= 10.0) & (t < 27.05), [10.0]) == [pytest.approx(17.1)]
+    assert recovery_times(t, np.zeros_like(t, dtype=bool), [10.0]) == [0.0]
     assert recovery_times(t, np.ones_like(t, dtype=bool), [10.0]) == [math.inf]
     keep = outside_allowance(t, [10.0])
     assert keep.sum() == len(t) - 50

@@ -8,6 +8,7 @@ Scored as the other runs, and, where the scenario kidnaps the robot, by the time
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import shutil
@@ -18,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.bench.spec import RunSpec
+from fusion.sim.config import ScenarioConfig
 
 RECOVERY_ALLOWANCE = 5.0
 """s after a kidnap within which a localizer is expected to be right again; the lost share
@@ -26,11 +28,18 @@ RECOVERY_HOLD = 5.0
 """s: recovered means right and staying right for this long (or to the end of the run)."""
 
 
-def scenario_config(run: RunSpec):
+@functools.lru_cache(maxsize=8)
+def scenario_config(scenario: str, seed: int, duration: float | None) -> ScenarioConfig:
+    """The scenario of a run (drawn once per process: a building's kidnap is placed by driving
+    its tour)."""
     from fusion.sim import scenario_preset
 
+    return scenario_preset(scenario, seed=seed, duration=duration)
+
+
+def _config(run: RunSpec) -> ScenarioConfig:
     assert run.scenario is not None
-    return scenario_preset(run.scenario, seed=run.seed, duration=run.duration)
+    return scenario_config(run.scenario, run.seed, run.duration)
 
 
 def simulated(run: RunSpec) -> RunSpec:
@@ -40,7 +49,7 @@ def simulated(run: RunSpec) -> RunSpec:
     from fusion.sim import simulate, write_run
     from fusion.sim.building import GENERATOR_VERSION, map_cache_dir
 
-    cfg = scenario_config(run)
+    cfg = _config(run)
     folder = map_cache_dir() / "runs" / (
         f"{run.scenario}-v{GENERATOR_VERSION}-{run.seed}-{cfg.duration:g}s")
     if not (folder / "gt.tum").exists():
@@ -57,7 +66,7 @@ def simulated(run: RunSpec) -> RunSpec:
 
 def kidnap_times(run: RunSpec) -> list[float]:
     """When the scenario kidnaps the robot (the log's clock)."""
-    cfg = scenario_config(run)
+    cfg = _config(run)
     return [cfg.start_time + k.t for k in cfg.kidnaps]
 
 
@@ -66,19 +75,19 @@ def recovery_times(t: NDArray[np.float64], lost: NDArray[np.bool_], kidnaps: lis
     """For each kidnap, seconds until the estimate is right and stays right for
     :data:`RECOVERY_HOLD` (or to the end of the run); ``inf`` when it never is."""
     order = np.argsort(t)
-    t, lost = t[order], lost[order]
+    t, lost = t[order], np.asarray(lost, dtype=bool)[order]
+    # each run of right poses: where it starts, and the time it lasts to (the next lost pose,
+    # or past the end)
+    right = ~lost
+    edges = np.diff(np.concatenate(([0], right.astype(np.int8), [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    until = np.where(ends < len(t), t[np.minimum(ends, len(t) - 1)], math.inf)
     out = []
     for tk in kidnaps:
-        after = np.flatnonzero(t >= tk)
-        found = math.inf
-        for i in after:
-            if lost[i]:
-                continue
-            window = (t >= t[i]) & (t < t[i] + RECOVERY_HOLD)
-            if not lost[window].any():
-                found = float(t[i] - tk)
-                break
-        out.append(found)
+        # a run counts from its first pose at or after the kidnap
+        first = np.maximum(starts, np.searchsorted(t, tk))
+        held = (first < ends) & (until - t[np.minimum(first, len(t) - 1)] >= RECOVERY_HOLD)
+        out.append(float(t[first[held][0]] - tk) if held.any() else math.inf)
     return out
 
 

@@ -28,11 +28,12 @@ from fusion.evaluation import (
     Trajectory,
     window_means,
 )
-from fusion.integrity import integrity_scores
+from fusion.integrity import LOCALIZED_HEADING_DEG, LOCALIZED_POSITION, integrity_scores
 
-LOST_POSITION = 0.3
-"""m: a pose farther than this from the reference is lost (as is one off by LOST_HEADING_DEG)."""
-LOST_HEADING_DEG = 5.0
+LOST_POSITION = LOCALIZED_POSITION
+"""m: a pose farther than this from the reference is lost (as is one off by LOST_HEADING_DEG):
+the bound within which the integrity output calls a pose right (fusion.integrity)."""
+LOST_HEADING_DEG = LOCALIZED_HEADING_DEG
 
 COLUMNS = ("task_id", "run", "method", "protocol", "settings", "scans", "ate_rmse_m",
            "ate_max_m", "heading_rmse_deg", "lost_frac", "covered_frac", "lost_covered_frac",

@@ -22,6 +22,7 @@ from fusion.evaluation.trajectory import (
     nearest_reference,
     statistics,
 )
+from fusion.integrity import LOCALIZED_HEADING_DEG, LOCALIZED_POSITION
 from fusion.io.relations import Relations
 from houghloc.geometry import compose, relative, wrap_angle
 
@@ -117,8 +118,8 @@ class LostResult:
 class LostFraction:
     """The fraction of matched poses off by more than ``max_position`` m or ``max_heading_deg``."""
 
-    max_position: float = 0.3
-    max_heading_deg: float = 5.0
+    max_position: float = LOCALIZED_POSITION
+    max_heading_deg: float = LOCALIZED_HEADING_DEG
     max_dt: float = DEFAULT_MAX_DT
 
     def compute(self, est: Trajectory, ref: Trajectory) -> LostResult:
