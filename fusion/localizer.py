@@ -253,7 +253,7 @@ class Localizer:
         if self._calibrate is not None:
             x, y, theta = self._calibrate(x, y, theta)
         if self.scan_odometry is not None and math.isfinite(x + y + theta):
-            x, y, theta = self.scan_odometry.on_wheels(x, y, theta, unmeasured)
+            x, y, theta = self.scan_odometry.on_wheels(x, y, theta, unmeasured, t)
         self.tracker.on_odometry(t, x, y, theta, unmeasured)
         self.logger.log_odometry(t, (x, y, theta))
 

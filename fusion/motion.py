@@ -66,6 +66,12 @@ class OdometryMotionConfig(BaseModel):
     jump_min_dt: float = Field(
         0.05, gt=0, description="shorter intervals are judged as this long (timestamp jitter)"
     )
+    max_acceleration: float = Field(
+        1.0, gt=0, description="m/s², the base's largest acceleration: past the newest odometry "
+        "reading its velocity is held, and after T seconds the pose is off by at most ½·this·T² "
+        "(taken as σ)")
+    max_angular_acceleration: float = Field(
+        2.0, gt=0, description="rad/s², the same for the heading")
     max_stall: float = Field(
         1.0, ge=0, description="s; an odometry that repeated its reading for up to this long "
         "may have stalled while the robot moved: the motion its next reading reports is judged "

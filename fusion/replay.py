@@ -165,9 +165,9 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
 
     A scan taken after the newest odometry reading (its reading for the same instant is next in
     the stream, or the clocks differ by a rounding) is used at once, but its pose is recorded
-    when the odometry covering its time has arrived: until then the tracker can only assume
-    that the robot has not moved since the last reading — tens of millimetres at walking speed,
-    the whole error of a scan whose fix was rejected. It is recorded when the next scan
+    when the odometry covering its time has arrived: until then the tracker can only carry the
+    pose at the last reading's velocity — centimetres off when the robot accelerates, the whole
+    error of a scan whose fix was rejected. It is recorded when the next scan
     arrives at the latest (odometry stamped behind the scans, e.g. a run of readings sharing one
     stamp, would otherwise hold it until the stamps catch up, and then give it all the motion
     since). Outputs stay in scan order.

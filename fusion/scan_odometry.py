@@ -25,6 +25,7 @@ slipped or misreport, and would otherwise bias every such step toward their erro
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,7 @@ from houghloc.matching import gate_threshold
 # The wheels' noise while they report no motion is zero; this floor (σ = 1 mm, 0.06°) keeps its
 # information finite, and still lets the wheels outweigh a match when the robot stands.
 _STILL_NOISE = 1e-6 * np.eye(3)
+_INTERVALS_KEPT = 32  # wheel intervals whose median is the wheels' usual one
 # The variance (m²) given a direction of the match that too few points observe: the match's
 # information there vanishes next to the wheels' (whose σ per step is millimetres to centimetres)
 _UNOBSERVED = 1e4
@@ -126,6 +128,9 @@ class ScanOdometry:
         self.matched = 0
         self.unmatched = 0
         self._wheels: NDArray[np.float64] | None = None  # newest wheel reading
+        self._wheels_t = math.nan  # its time (NaN: not given)
+        self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)  # between readings
+        self._readings = 0  # wheel readings since the previous scan
         self._anchor_wheels: NDArray[np.float64] | None = None  # wheels at the reference scan
         self._anchor: NDArray[np.float64] | None = None  # corrected pose there
         self._points: NDArray[np.float64] | None = None  # the reference scan
@@ -145,10 +150,14 @@ class ScanOdometry:
         """The time of the scan the next one is matched to (−∞ before the first)."""
         return self._time
 
-    def on_wheels(self, x: float, y: float, theta: float,
-                  unmeasured: float = 0.0) -> tuple[float, float, float]:
-        """The corrected odometry pose for a wheel reading (``unmeasured``: seconds before it
-        whose motion the wheels missed, see :class:`fusion.events.Odometry`)."""
+    def on_wheels(self, x: float, y: float, theta: float, unmeasured: float = 0.0,
+                  t: float = math.nan) -> tuple[float, float, float]:
+        """The corrected odometry pose for a wheel reading taken at t (``unmeasured``: seconds
+        before it whose motion the wheels missed, see :class:`fusion.events.Odometry`)."""
+        if t > self._wheels_t:
+            self._intervals.append(t - self._wheels_t)
+        self._wheels_t = t
+        self._readings += 1
         self._wheels = np.array((x, y, theta), dtype=float)
         self._unmeasured += unmeasured
         if self._anchor is None:
@@ -159,9 +168,10 @@ class ScanOdometry:
         """The corrected odometry pose at a scan taken at t (the wheels are read at their newest
         reading), or None when the scan cannot be matched; the first scan becomes the
         reference. ``points``: finite, robot frame (the Localizer has cleaned them)."""
+        late, self._readings = self._wheels_late(t), 0
         if self._wheels is None or len(points) < self.config.min_points:
             return None
-        if self._points is None or t - self._time > self.config.max_interval:
+        if self._points is None or t - self._time > self.config.max_interval or late:
             self.skip(t, points)
             return None
         assert self._anchor is not None and self._anchor_wheels is not None  # set with _points
@@ -178,6 +188,17 @@ class ScanOdometry:
         assert icp is not None
         return Correction(t, compose(self._anchor, step), self._time, cov, points, self._wheels,
                           self._scale_evidence(raw_step, icp))
+
+    def _wheels_late(self, t: float) -> bool:
+        """The wheels have missed a reading before the scan at t: none came since the previous
+        scan, and their newest is older than twice their usual interval (the median of the
+        last ones; readings that share a stamp still come, and are not late). Their increment
+        would then say the robot stood still since, and the match would be fused with that;
+        instead the scan becomes the reference, and the filter carries the pose past the
+        wheels' newest reading by itself (:meth:`fusion.tracker.PoseTracker.pose_at`)."""
+        if self._readings > 0 or len(self._intervals) < _INTERVALS_KEPT // 2:
+            return False
+        return t - self._wheels_t > 2.0 * float(np.median(self._intervals))
 
     def commit(self, correction: Correction) -> None:
         """The filter took the corrected pose: the scan becomes the reference for the next."""

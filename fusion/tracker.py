@@ -5,8 +5,10 @@ pose, the posterior (x, P) at that time, the increment (and its noise) that led 
 previous node, and the pose measurements applied there. Odometry readings make nodes; so does a
 measurement taken between two readings, at its own time, with the odometry interpolated there.
 
-* A measurement newer than every node is applied at once to the newest estimate: there is no
-  extrapolation beyond the last odometry (the robot is assumed not to have moved since). It is
+* A measurement newer than every node is applied at once to the estimate extrapolated to its
+  time: the newest odometry's velocity held, the covariance widened by what the base's
+  acceleration could change meanwhile (:meth:`PoseTracker._ahead`), so a pose reported while
+  the odometry is late (a few seconds without readings) is neither frozen nor confident. It is
   kept as a *provisional* node, and when the next odometry arrives the node gets its real
   (interpolated) odometry and the short tail is re-filtered — so the result is the same as if
   the odometry had been there first.
@@ -46,7 +48,7 @@ from fusion.motion import (
     interpolate,
 )
 from fusion.status import ScanStatus
-from houghloc.geometry import wrap_angle
+from houghloc.geometry import compose, wrap_angle
 from houghloc.jit import njit
 
 if TYPE_CHECKING:  # the config module imports the filter's pieces, not the other way round
@@ -163,8 +165,8 @@ class PoseTracker:
 
     def pose_at(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """(x, P) at time t: the node at or before t, predicted with the odometry interpolated
-        at t. Newer than the newest node: the newest estimate (no extrapolation). Older than
-        the history: None. Before any odometry: the current estimate, whatever t.
+        at t. Newer than the newest node: extrapolated (:meth:`_ahead`). Older than the
+        history: None. Before any odometry: the current estimate, whatever t.
         """
         if not self._nodes:
             return self._x.copy(), self._p.copy()
@@ -173,9 +175,12 @@ class PoseTracker:
             return None
         node = self._estimate(j)
         assert node.x is not None and node.p is not None  # _estimate computes them
-        if j == len(self._nodes) - 1 or t == node.t:
+        if t == node.t:
             return node.x.copy(), node.p.copy()
-        _, step, q = self._split(node, self._nodes[j + 1], t)
+        if j == len(self._nodes) - 1:
+            step, q = self._ahead(node, t)
+        else:
+            _, step, q = self._split(node, self._nodes[j + 1], t)
         self._load(node)
         self._ekf.predict_odometry(step, q)
         return self._ekf.x.copy(), self._ekf.P.copy()
@@ -295,7 +300,7 @@ class PoseTracker:
             n.odom = odom
         reading = _Node(t, odom, None, None, _ZERO3, _ZERO33, jump)
         prev = lo
-        for n in [*before, reading, *after]:
+        for n in [*before, reading]:
             if n is reading and jump:
                 n.step, n.step_q = _ZERO3, self.motion.jump_noise(dt)
             else:
@@ -305,7 +310,13 @@ class PoseTracker:
                 n.step_q = n.step_q + self.motion.jump_noise(unmeasured)
             self._nodes.append(n)
             prev = n
-        self._tail = len(after)
+        self._tail = 0
+        for n in after:  # still beyond the odometry: extrapolated from the new reading
+            n.step, n.step_q = self._ahead(prev, n.t)
+            n.odom = compose(prev.odom, n.step)
+            self._nodes.append(n)
+            self._tail += 1
+            prev = n
         self._mark_stale(lo_index + 1)
 
     # ------------------------------------------------------------------------- measurements
@@ -366,10 +377,11 @@ class PoseTracker:
         if t == newest.t:
             self._load(self._estimate(-1))
             return self._attach(newest, meas)
-        # Newer than any odometry: assume no motion since; fixed when the odometry arrives.
+        # Newer than any odometry: extrapolated; fixed when the odometry arrives.
         self._estimate(-1)
-        node = _Node(t, newest.odom, newest.x, newest.p, _ZERO3, _ZERO33)
-        self._load(node)
+        step, q = self._ahead(newest, t)
+        node = _Node(t, compose(newest.odom, step), None, None, step, q)
+        self._propagate(newest, node)
         outcome = self._attach(node, meas)
         self._nodes.append(node)
         self._tail += 1
@@ -417,6 +429,42 @@ class PoseTracker:
         odom = interpolate(node.odom, nxt.odom, (t - node.t) / (nxt.t - node.t))
         step = increment(node.odom, odom)
         return odom, step, self.motion.noise(step)
+
+    def _ahead(self, prev: _Node, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The step from ``prev``, the newest node, to t, later than every odometry reading,
+        and its noise: the newest reading's velocity held, δ = v·(t − t_prev), widened by what
+        a bounded acceleration changes meanwhile. T seconds after the reading, the held
+        velocity's pose is off by at most ½aT² (a = ``max_acceleration``; the heading with
+        ``max_angular_acceleration``), taken as σ; the step from T₀ to T adds the variance
+        (½a)²(T⁴ − T₀⁴), so the variances of successive steps sum to that of their span."""
+        nodes = self._nodes
+        index = len(nodes) - 1 - self._tail
+        reading = nodes[index]
+        step = self._velocity(index) * (t - prev.t)
+        grow = 0.25 * ((t - reading.t) ** 4 - (prev.t - reading.t) ** 4)
+        c = self.motion.config
+        linear, angular = c.max_acceleration**2 * grow, c.max_angular_acceleration**2 * grow
+        return step, self.motion.noise(step) + np.diag((linear, linear, angular))
+
+    def _velocity(self, index: int) -> NDArray[np.float64]:
+        """The odometry's velocity (robot frame, per second) at node ``index``: its motion over
+        the last ``jump_min_dt`` seconds at least (a shorter span would divide the readings'
+        rounding by nearly nothing). Zero across a jump, without such a span, or beyond the
+        base's limits (``max_speed``, ``max_turn_rate``): then the stamps do not time the
+        readings (several readings share one), and holding that velocity would fling the pose."""
+        nodes = self._nodes
+        reading = nodes[index]
+        c = self.motion.config
+        k = index - 1
+        while k >= 0 and reading.t - nodes[k].t < c.jump_min_dt:
+            k -= 1
+        if k < 0 or any(nodes[i].jump for i in range(k + 1, index + 1)):
+            return _ZERO3
+        velocity = increment(nodes[k].odom, reading.odom) / (reading.t - nodes[k].t)
+        if (math.hypot(velocity[0], velocity[1]) > c.max_speed
+                or abs(velocity[2]) > c.max_turn_rate):
+            return _ZERO3
+        return velocity
 
     def _load(self, node: _Node) -> None:
         # The engine never modifies these arrays in place (filterpy assigns new ones), so the

@@ -208,10 +208,10 @@ def test_a_kidnap_along_a_corridor_is_not_tracked_at_a_look_alike_door():
 @pytest.mark.slow
 def test_held_out_buildings(tmp_path):
     """Seeds 1000–1049, never tuned on, run here only: the defaults' figures may not fall back
-    below what they were when these guards were set (measured: median ATE 51.6 cm and lost
-    7.2 % outside the kidnaps' 5 s, confident-wrong 1.2 %, 23 of 50 kidnaps recovered within
+    below what they were when these guards were set (measured: median ATE 47.0 cm and lost
+    6.7 % outside the kidnaps' 5 s, confident-wrong 0.62 %, 23 of 50 kidnaps recovered within
     5 s; docs/benchmark.md#generated-buildings). The issue's goals are further: 2 cm, 1 %,
-    0.1 %, 95 %. (Their cost, 10.5 ms a scan at worst, is the benchmark's to print.)"""
+    0.1 %, 95 %. (Their cost, 8.1 ms a scan at worst, is the benchmark's to print.)"""
     import statistics
 
     from tests.conftest import REPO
@@ -225,7 +225,35 @@ def test_held_out_buildings(tmp_path):
     def column(name):
         return [float(r[name]) for r in rows if r[name] != ""]
 
-    assert statistics.median(column("ate_outside_kidnap_m")) <= 0.75
-    assert statistics.median(column("lost_outside_kidnap_frac")) <= 0.10
-    assert statistics.median(column("confident_wrong_frac")) <= 0.025
+    assert statistics.median(column("ate_outside_kidnap_m")) <= 0.65
+    assert statistics.median(column("lost_outside_kidnap_frac")) <= 0.085
+    assert statistics.median(column("confident_wrong_frac")) <= 0.01
     assert sum(v <= 5.0 for v in column("recovery_s")) >= 18
+
+
+def test_through_an_odometry_gap_the_pose_moves_on_or_says_it_is_lost():
+    """Seed 80 loses its odometry records for 2.4 s at 54.9 s while it drives at 0.5 m/s. The
+    scans keep coming: the filter carries the pose past the wheels' newest reading at their
+    last velocity, widened by what the base's acceleration could change. Holding the pose
+    still there (the wheels' silence read as standing still) left it behind by the whole
+    1.2 m, reported localized."""
+    from fusion.config import LocalizerConfig
+    from fusion.integrity import is_localized
+    from fusion.run_log import run_log
+    from fusion.sim.poses import interpolate_poses
+
+    cfg = building_scenario(80)
+    gap = cfg.odometry_gaps[0]
+    assert 54.0 < gap.t < 56.0 and gap.duration > 2.0
+    run = simulate(cfg)
+    events = (e for e in run.events() if e.t <= gap.t + gap.duration + 2.0)
+    done = run_log(events, run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
+    t, poses = done.result.t, done.result.poses
+    truth = interpolate_poses(t, run.odom_t, run.odom_truth)
+    inside = np.flatnonzero((t >= gap.t) & (t < gap.t + gap.duration))
+    moved = np.hypot(*(poses[inside[-1], :2] - poses[inside[0], :2]))
+    truly = np.hypot(*(truth[inside[-1], :2] - truth[inside[0], :2]))
+    assert truly > 1.0 and abs(moved - truly) < 0.2
+    off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    localized = is_localized(done.result.localized_probability)
+    assert not (localized[inside] & (off[inside] > 0.3)).any()

@@ -320,15 +320,29 @@ def test_measurement_older_than_the_history_is_dropped():
     assert tracker.pose_at(1.6) is not None
 
 
-def test_pose_at_interpolates_and_never_extrapolates():
-    quiet = OdometryMotionConfig(alpha1=0, alpha2=0, alpha3=0, alpha4=0, floor_xy=0, floor_theta=0)
+def test_pose_at_interpolates_and_extrapolates_the_held_velocity():
+    quiet = OdometryMotionConfig(alpha1=0, alpha2=0, alpha3=0, alpha4=0, floor_xy=0, floor_theta=0,
+                                 max_acceleration=0.5, max_angular_acceleration=1.0)
     tracker = PoseTracker([0.0, 0.0, 0.0], P0, quiet)
-    t_end, _ = drive(tracker, (1.0, 0.0), seconds=1.0)
+    t_end, _ = drive(tracker, (1.0, 0.2), seconds=1.0)
     x, _ = tracker.pose_at(0.505)
-    np.testing.assert_allclose(x, [0.505, 0.0, 0.0], atol=1e-9)
-    x, p = tracker.pose_at(t_end + 5.0)
-    np.testing.assert_allclose(x, tracker.pose)
-    np.testing.assert_allclose(p, tracker.cov)
+    assert abs(x[2] - 0.101) < 1e-9  # 0.2 rad/s for 0.505 s
+    # beyond the newest reading: 1 m/s and 0.2 rad/s held for T = 2 s, the pose widened by
+    # (½aT²)² = 1 m² and (½αT²)² = 4 rad² on top of the newest covariance
+    x, p = tracker.pose_at(t_end + 2.0)
+    np.testing.assert_allclose(x, compose(tracker.pose, [2.0, 0.0, 0.4]), atol=0.02)
+    np.testing.assert_allclose(np.diag(p) - np.diag(tracker.cov), [1.0, 1.0, 4.0], rtol=0.2)
+    # a measurement past the odometry chains the extrapolation: half-way, then the rest; when
+    # it tells nothing, the mean and the spread along the way are those of one go (sideways
+    # the spread is wider: the heading's spread at half-way swings the rest of the way)
+    straight = PoseTracker([0.0, 0.0, 0.0], P0, quiet)
+    t_end, _ = drive(straight, (1.0, 0.0), seconds=1.0)
+    x, p = straight.pose_at(t_end + 2.0)
+    straight.apply(t_end + 1.0, straight.pose_at(t_end + 1.0)[0], np.eye(3) * 1e9)
+    x_later, p_later = straight.pose_at(t_end + 2.0)
+    np.testing.assert_allclose(x_later, x, atol=1e-6)
+    np.testing.assert_allclose([p_later[0, 0], p_later[2, 2]], [p[0, 0], p[2, 2]], rtol=1e-3)
+    assert p_later[1, 1] > p[1, 1]
 
 
 def test_measurements_without_odometry_keep_the_history_bounded():
