@@ -39,6 +39,10 @@ class IcpResult:
     run of beams without a jump of ``max_neighbour_gap`` and at most :data:`MOVABLE_EXTENT`
     across. A person walking beside the robot can carry a match along a corridor alone; a
     direction the rest of the scene does not observe may be that person's motion."""
+    disagreement: tuple[float, int] = (0.0, 0)
+    """(Q, dof): how far the scene's objects disagree on the motion along ``weakest``, a χ²
+    statistic with dof degrees of freedom on a rigid scene (:func:`_object_disagreement`).
+    Several people walking, or people and the furniture, make it large."""
 
 
 def scan_normals(points: NDArray[np.float64], max_gap: float, radius: float,
@@ -94,7 +98,7 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
         return None
     previous = np.ascontiguousarray(previous, dtype=float)
     normals, usable = scan_normals(previous, config.max_neighbour_gap, config.normal_radius)
-    found, x, hessian, sigma2, overlap, paired_normals, weights = _icp(
+    found, x, hessian, sigma2, overlap, paired_normals, weights, residuals = _icp(
         previous, normals, usable, np.ascontiguousarray(current, dtype=float),
         np.array(guess, dtype=float), config.iterations, config.max_pair_distance,
         config.final_pair_distance, config.huber, config.min_points)
@@ -102,10 +106,14 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
         return None
     x[2] = wrap_scalar(x[2])
     weakest = np.linalg.eigh(hessian[:2, :2])[1][:, 0]
-    evidence = weights * (paired_normals @ weakest) ** 2
-    support = float(evidence.sum() - _largest_movable(current, evidence,
-                                                      config.max_neighbour_gap))
-    return IcpResult(x, sigma2 * np.linalg.inv(hessian), overlap, weakest, support)
+    facing = paired_normals @ weakest
+    evidence = weights * facing**2
+    starts = _objects(current, config.max_neighbour_gap)
+    support = float(evidence.sum() - _largest_movable(current, evidence, starts))
+    disagreement = _object_disagreement(evidence, weights * facing * residuals, starts,
+                                        sigma2 * config.noise_scale)
+    return IcpResult(x, sigma2 * np.linalg.inv(hessian), overlap, weakest, support,
+                     disagreement)
 
 
 MOVABLE_EXTENT = 1.0
@@ -113,15 +121,22 @@ MOVABLE_EXTENT = 1.0
 beams is a wall or furniture too large to carry."""
 
 
-def _largest_movable(points: NDArray[np.float64], evidence: NDArray[np.float64],
-                     max_gap: float) -> float:
-    """The most evidence one movable object gives: objects are runs of beams without a jump of
-    ``max_gap``; those whose bounding box's diagonal is at most MOVABLE_EXTENT count."""
+def _objects(points: NDArray[np.float64], max_gap: float) -> NDArray[np.intp]:
+    """The first beam of each object: objects are runs of beams without a jump of ``max_gap``."""
     points = np.asarray(points, dtype=float)
     if len(points) == 0:
-        return 0.0
+        return np.zeros(0, np.intp)
     jumps = np.flatnonzero(np.hypot(*np.diff(points, axis=0).T) > max_gap) + 1
-    starts = np.concatenate(([0], jumps))
+    return np.concatenate(([0], jumps))
+
+
+def _largest_movable(points: NDArray[np.float64], evidence: NDArray[np.float64],
+                     starts: NDArray[np.intp]) -> float:
+    """The most evidence one movable object gives: of the objects (``starts``, see
+    :func:`_objects`), those whose bounding box's diagonal is at most MOVABLE_EXTENT count."""
+    if len(starts) == 0:
+        return 0.0
+    points = np.asarray(points, dtype=float)
     low = np.minimum.reduceat(points, starts, axis=0)
     high = np.maximum.reduceat(points, starts, axis=0)
     movable = np.hypot(*(high - low).T) <= MOVABLE_EXTENT
@@ -129,13 +144,36 @@ def _largest_movable(points: NDArray[np.float64], evidence: NDArray[np.float64],
     return float(per_object[movable].max()) if movable.any() else 0.0
 
 
+def _object_disagreement(evidence: NDArray[np.float64], moment: NDArray[np.float64],
+                         starts: NDArray[np.intp], sigma2: float) -> tuple[float, int]:
+    """How far the objects disagree on the motion along the weakest direction u: (Q, dof).
+
+    Object j alone would shift the scan along u by δⱼ = −Σ wᵢ aᵢ rᵢ / Eⱼ (least squares on
+    its residuals rᵢ, aᵢ = nᵢ·u, Eⱼ = Σ wᵢ aᵢ², its evidence), with variance σ²/Eⱼ. On a rigid
+    scene every δⱼ is the same up to that noise, and Q = Σ Eⱼ (δⱼ − δ̄)²/σ² (δ̄ the
+    evidence-weighted mean) is χ² with (objects − 1) degrees of freedom; objects that moved
+    between the scans (people walking) make it large. Objects with less than one point's
+    worth of evidence along u are left out: they do not observe it."""
+    if len(starts) == 0:
+        return 0.0, 0
+    e = np.add.reduceat(evidence, starts)
+    m = np.add.reduceat(moment, starts)
+    seen = e >= 1.0
+    if seen.sum() < 2:
+        return 0.0, 0
+    e, shift = e[seen], -m[seen] / e[seen]
+    mean = float(e @ shift / e.sum())
+    return float(e @ (shift - mean) ** 2 / sigma2), int(seen.sum()) - 1
+
+
 @njit
 def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
          x: NDArray, iterations: int, max_pair: float, final_pair: float, huber: float,
-         min_points: int) -> tuple[bool, NDArray, NDArray, float, float, NDArray, NDArray]:
+         min_points: int
+         ) -> tuple[bool, NDArray, NDArray, float, float, NDArray, NDArray, NDArray]:
     """The Gauss–Newton iterations of :func:`point_to_line_icp`: (found, x, JᵀWJ + damping,
-    σ̂², overlap, each current point's paired normal and Huber weight at the last iteration,
-    zero where unpaired). Nearest neighbours come from a grid of the previous scan
+    σ̂², overlap, each current point's paired normal, Huber weight and residual at the last
+    iteration, zero where unpaired). Nearest neighbours come from a grid of the previous scan
     (:func:`_nearest`)."""
     index = _cell_index(previous, _grid_cell(previous, final_pair))
     n = len(current)
@@ -172,7 +210,7 @@ def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
                 for b in range(3):
                     hessian[a, b] += jac[a] * jac[b] * w
         if paired < min_points:
-            return False, x, hessian, 0.0, 0.0, paired_normals, weight
+            return False, x, hessian, 0.0, 0.0, paired_normals, weight, residual
         hessian += _DAMPING * np.eye(3)
         # damped: along a featureless corridor one direction has no information; the step
         # leaves it alone and the covariance calls it unknown (σ² ~ σ̂²/damping)
@@ -182,7 +220,7 @@ def _icp(previous: NDArray, normals: NDArray, usable: NDArray, current: NDArray,
             break
     dof = max(1, paired - 3)
     sigma2 = max((weight * residual**2).sum() / dof, 1e-6)
-    return True, x, hessian, sigma2, paired / n, paired_normals, weight
+    return True, x, hessian, sigma2, paired / n, paired_normals, weight, residual
 
 
 GRID_CELLS = 262_144

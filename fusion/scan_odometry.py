@@ -281,7 +281,15 @@ class ScanOdometry:
         if self._unmeasured > 0.0:
             wheel_cov = wheel_cov + self.motion.jump_noise(self._unmeasured)
         scan_cov = icp.cov * c.noise_scale + self._floor
-        if icp.support < c.min_points:
+        q, dof = icp.disagreement
+        if c.robust_quantile is not None and dof > 0 and q > gate_threshold(c.robust_quantile,
+                                                                             dof):
+            # The scene's objects disagree on the motion along the match's weakest direction:
+            # some of them moved (people walking along a corridor), and the match there is a
+            # compromise among their motions. The wheels' increment is kept along it.
+            u = np.array((icp.weakest[0], icp.weakest[1], 0.0))
+            scan_cov = scan_cov + _UNOBSERVED * np.outer(u, u)
+        elif icp.support < c.min_points:
             # Without its strongest object, the scene gives fewer points' worth of evidence
             # than a match needs along the match's weakest direction (a person walking along a
             # featureless corridor, a door frame; IcpResult.support). Where that object agrees

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.stats import chi2
 
 from fusion.config import ConfigError, LocalizerConfig
 from fusion.experiment import localize_simulated
@@ -424,3 +425,41 @@ def test_an_end_wall_is_no_movable_object_and_still_corrects_the_wheels() -> Non
     pose, _ = wheels_then_scan(closed, np.array([0.0, 0.0, 0.0]), np.array([0.05, 0.0, 0.0]),
                                np.array([0.20, 0.0, 0.0]))
     assert pose[0] == pytest.approx(0.05, abs=0.01)
+
+
+def test_a_person_walking_past_a_box_does_not_carry_the_match() -> None:
+    """A box stands 2 m ahead in a featureless corridor; a person 1.2 m ahead walks 4 cm towards
+    the robot while it drives 5 cm. Along the corridor the box says 5 cm and the person 9 cm:
+    the scene is not rigid there (``IcpResult.disagreement``), the match is a compromise of the
+    two, and the wheels' step is kept along the corridor."""
+    start = np.array([0.0, 0.0, 0.0])
+    motion = np.array([0.05, 0.0, 0.0])
+    box = _person((2.0, -0.4), radius=0.3, sides=4)
+    before = np.vstack((CORRIDOR, box, _person((1.2, 0.3))))
+    moved = np.vstack((CORRIDOR, box, _person((1.16, 0.3))))
+    icp = point_to_line_icp(scan_points(before, start), scan_points(moved, compose(start, motion)),
+                            motion, CONFIG)
+    assert icp is not None and icp.delta[0] > 0.055
+    q, dof = icp.disagreement
+    assert dof >= 1 and q > chi2.ppf(0.99, dof)
+    scan_odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    scan_odometry.on_wheels(0.0, 0.0, 0.0)
+    scan_odometry.match(0.0, scan_points(before, start))
+    scan_odometry.on_wheels(*motion)
+    correction = scan_odometry.match(0.1, scan_points(moved, compose(start, motion)))
+    assert correction is not None
+    assert correction.pose[0] == pytest.approx(0.05, abs=0.003)
+
+
+def test_on_a_rigid_scene_the_objects_agree() -> None:
+    """The same corridor, box and person, nobody moving: the objects' shifts along the corridor
+    agree within their noise, and the match corrects wheels that read 3 cm too far."""
+    start = np.array([0.0, 0.0, 0.0])
+    scene = np.vstack((CORRIDOR, _person((2.0, -0.4), radius=0.3, sides=4), _person((1.2, 0.3))))
+    icp = point_to_line_icp(scan_points(scene, start),
+                            scan_points(scene, compose(start, [0.05, 0.0, 0.0])),
+                            np.array([0.08, 0.0, 0.0]), CONFIG)
+    assert icp is not None
+    q, dof = icp.disagreement
+    assert dof >= 1 and q < chi2.ppf(0.99, dof)
+    assert icp.delta[0] == pytest.approx(0.05, abs=0.005)
