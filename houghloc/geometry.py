@@ -93,15 +93,21 @@ def mod_two_pi(u: float) -> float:
     return u % TWO_PI  # zero (its sign), far outside, NaN
 
 
+_SMALLEST_NORMAL = 2.2250738585072014e-308  # np.finfo(float).tiny
+
+
 @njit
 def within_radius(dx: float, dy: float, radius: float) -> bool:
     """``hypot(dx, dy) <= radius``, with the square root taken only where the squared length
-    is within a relative 1e-9 of ``radius``²: elsewhere its rounding cannot change the answer."""
+    is within a relative 1e-9 of ``radius``²: elsewhere its rounding cannot change the answer.
+    Squares below the smallest normal float (lengths under 1e-154) have lost that relative
+    precision, so there the square root is always taken."""
     d2, r2 = dx * dx + dy * dy, radius * radius
-    if d2 < r2 * (1.0 - 1e-9):
-        return True
-    if d2 > r2 * (1.0 + 1e-9):
-        return False
+    if r2 >= _SMALLEST_NORMAL:
+        if d2 < r2 * (1.0 - 1e-9):
+            return True
+        if d2 > r2 * (1.0 + 1e-9):
+            return False
     return math.hypot(dx, dy) <= radius
 
 

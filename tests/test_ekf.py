@@ -527,6 +527,7 @@ def test_positive_definite_agrees_with_cholesky(k, seed, signs) -> None:
 @example(0.6, 0.8, 1.0, False, 0.0)  # a radius of exactly the hypotenuse
 @example(3e-200, 4e-200, 5e-200, False, 0.0)  # squares that underflow
 @example(1206152892812347.0, 1206152892812347.0, 0.0, True, 0.0)  # the two hypots differ
+@example(2.6547026634909027e-161, 2.6547026634909027e-161, 0.0, True, 0.0)  # subnormal squares
 def test_within_radius_is_hypots_comparison(dx: float, dy: float, radius: float,
                                             on_circle: bool, nudge: float) -> None:
     """The squared prefilter answers as ``hypot(dx, dy) <= radius`` does, to the last bit:
