@@ -268,3 +268,27 @@ def test_mrpt_peer_on_the_hand_computed_case(hand_log, tmp_path):
     assert row["status"] == "ok", row["error"]
     assert int(row["scans"]) == N
     assert float(row["ate_rmse_m"]) < 0.15  # 0.07 m × k without the map
+
+
+def test_amcls_integrity_is_the_spread_of_its_particles():
+    """The benchmark scores AMCL's reported covariance as houghloc's spread (mode 1): the
+    particles drawn around a pose with σ 0.5 m, 0.2 m and 0.1 rad give that covariance back,
+    axis by axis, and a probability of being within 0.3 m and 5° well below 0.95."""
+    amcl = pytest.importorskip("amcl", reason="the peers extra is not installed")
+    from fusion.bench.methods import _amcl_covariance
+    from fusion.integrity import localized_probability
+
+    beams = amcl.LaserParameters(0.5, 0.05, 0.05, 0.5, 0.2, 0.1, 0.05, 60)
+    filt = amcl.AMCL(500, 2000, 0.0, 0.0, amcl.MotionParameters(0.2, 0.2, 0.2, 0.2, 0.2),
+                     beams, "differential")
+    grid = amcl.OccupancyGrid(100, 100, 0.1, -5.0, -5.0)
+    grid.data = [0] * 10_000
+    filt.set_map(grid)
+    cov = amcl.Matrix3D()
+    for i, v in enumerate((0.25, 0.04, 0.01)):
+        cov.set(i, i, v)
+    filt.set_initial_pose(amcl.Vector3D(1.0, 2.0, 0.3), cov)
+    got = _amcl_covariance(filt)
+    np.testing.assert_allclose(np.diag(got), [0.25, 0.04, 0.01], rtol=0.25)
+    assert abs(got[0, 1]) < 0.02
+    assert localized_probability(got, 1.0) < 0.5

@@ -35,6 +35,7 @@ from fusion.bench.spec import Method
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.evaluation import Trajectory
 from fusion.events import Odometry, Scan
+from fusion.integrity import localized_probability
 from houghloc.geometry import compose, ranges_to_points, relative, transform_points
 
 
@@ -208,8 +209,9 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
     filt = _make_amcl(amcl, p, piece, sensor)
     last_update_odom: NDArray[np.float64] | None = None
     at_update = np.zeros(3)
+    probability = 0.0
     odom = np.zeros(3)  # no reading yet: the odometry frame's origin
-    t, poses = [], []
+    t, poses, probabilities = [], [], []
     cpu = time.process_time()
     for e in piece.events:
         if isinstance(e, Odometry):
@@ -225,12 +227,22 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
             filt.update(_amcl_scan(amcl, e, sensor), amcl.Vector3D(*odom))
             m = filt.get_pose_mean()
             at_update, last_update_odom = np.array((m.x, m.y, m.theta)), odom
+            probability = localized_probability(_amcl_covariance(filt), 1.0)
         # between updates, nav2 publishes the last estimate moved by the odometry since
         assert last_update_odom is not None
         t.append(scan_stamp(e))
         poses.append(compose(at_update, relative(last_update_odom, odom)))
+        probabilities.append(probability)
     return Localized(Trajectory(np.array(t), np.asarray(poses).reshape(-1, 3)),
-                     time.process_time() - cpu)
+                     time.process_time() - cpu, probability=np.array(probabilities))
+
+
+def _amcl_covariance(filt: Any) -> NDArray[np.float64]:
+    """The covariance nav2 publishes with ``amcl_pose`` (that of its particles' pose), as a
+    3×3 array: a user of AMCL judges whether the robot is localized from it, and the benchmark
+    scores it as houghloc's spread (:func:`fusion.integrity.localized_probability`, mode 1)."""
+    c = filt.get_pose_covariance()
+    return np.array([[c.get(i, j) for j in range(3)] for i in range(3)], dtype=float)
 
 
 def _make_amcl(amcl: Any, p: dict[str, Any], piece: Piece, sensor: SensorConfig) -> Any:
