@@ -257,3 +257,22 @@ def test_through_an_odometry_gap_the_pose_moves_on_or_says_it_is_lost():
     off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
     localized = is_localized(done.result.localized_probability)
     assert not (localized[inside] & (off[inside] > 0.3)).any()
+
+
+def test_lost_poses_are_placed_where_they_were_lost():
+    """Seed 0: corridor x 0–19.4 m (y 0–1.9 m), rooms beyond it, the hall east of it, the gap
+    at 40.9 s for 3.6 s, the kidnap at 122.2 s. A pose is placed by the run's events first, by
+    where the robot truly is then; lost poses after a kidnap count as such until the robot is
+    right for good."""
+    from fusion.bench.where import main, places
+
+    t = np.array([10.0, 11.0, 12.0, 13.0, 42.0, 45.0, 123.0, 130.0, 140.0, 150.0])
+    truth = np.array([[-5.0, 1.0, 0.0], [8.0, 1.0, 0.0], [8.0, 3.5, 0.0], [22.0, 0.0, 0.0],
+                      [8.0, 1.0, 0.0], [8.0, 1.0, 0.0], [8.0, 1.0, 0.0], [8.0, 1.0, 0.0],
+                      [8.0, 1.0, 0.0], [8.0, 1.0, 0.0]])
+    lost = np.array([True] * 8 + [False, False])
+    where = places(0, t, truth, lost)
+    assert list(where) == ["featureless corridor", "main corridor", "rooms", "hall",
+                           "odometry gap", "odometry gap", "kidnap allowance", "after a kidnap",
+                           "main corridor", "main corridor"]
+    assert main(["/nonexistent"]) == 2
