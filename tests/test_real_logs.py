@@ -127,8 +127,8 @@ def test_aces_whole_log_keeps_tracking() -> None:
     assert h["ate_rmse_m"] < 0.06 and h["ate_max_m"] < 0.4
 
 
-def _benchmark_row(name: str, protocol: str) -> dict:
-    """houghloc's row of one of the benchmark's tasks on one log (the defaults)."""
+def _benchmark_row(name: str, protocol: str, method: str = "houghloc") -> dict:
+    """A method's row of one of the benchmark's tasks on one log (houghloc: the defaults)."""
     from fusion.bench.spec import Method, Protocol, load_spec
     from fusion.bench.task import Task, run_task
 
@@ -136,7 +136,7 @@ def _benchmark_row(name: str, protocol: str) -> dict:
     found = next((r for r in spec.runs if r.name == name), None)
     if found is None or not found.log.exists():
         pytest.skip(f"{name} data missing")
-    result = run_task(Task(found, Method.HOUGHLOC, Protocol(protocol), {}))
+    result = run_task(Task(found, Method(method), Protocol(protocol), {}))
     assert result.row["status"] == "ok", result.row["error"]
     return result.row
 
@@ -183,3 +183,19 @@ def test_held_out_maps_are_not_left_for_look_alikes(name, lost, ate) -> None:
     row = _benchmark_row(name, "held-out-map")
     assert float(row["lost_covered_frac"]) <= lost
     assert float(row["ate_rmse_m"]) < ate
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["aces", "freiburg-101", "intel"])
+def test_the_tuned_amcl_passes_its_sanity_gate(name) -> None:
+    """nav2's AMCL with its tuned set, from the known start on the map of the same run, is lost
+    on at most 5 % of the scans of these logs (measured: ACES 2.5 %, Freiburg 101 1.4 %, Intel
+    2.9 %); on fhw, Freiburg 079 and seattle it is not (11.5, 83.7 and 6.6 %), and summary.md
+    marks its rows there suspect (fusion.bench.report.suspect)."""
+    from fusion.bench.nav2_amcl import LIBRARY
+    from fusion.bench.report import PEER_SANITY_LOST
+
+    if not LIBRARY.exists():
+        pytest.skip(f"nav2's AMCL is not built ({LIBRARY}): make peers")
+    row = _benchmark_row(name, "same-run", "amcl-tuned")
+    assert float(row["lost_frac"]) <= PEER_SANITY_LOST

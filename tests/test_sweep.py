@@ -5,6 +5,7 @@ failing tasks."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import os
 import signal
@@ -194,7 +195,7 @@ def _office_spec(folder: Path, methods: list[str], protocols: list[str],
 def test_peers_localize_the_simulated_office(office_run, tmp_path):
     pytest.importorskip("small_gicp", reason="the peers extra is not installed "
                         "(pip install -e '.[peers]'; make test installs it)")
-    pytest.importorskip("amcl", reason="the peers extra is not installed")
+    _need_nav2_amcl()
     spec = _office_spec(office_run, ["houghloc", "icp", "amcl", "amcl-tuned"],
                         ["same-run", "global-start"])
     run_sweep(load_spec(spec), tmp_path / "o", workers=2, progress=False)
@@ -270,25 +271,78 @@ def test_mrpt_peer_on_the_hand_computed_case(hand_log, tmp_path):
     assert float(row["ate_rmse_m"]) < 0.15  # 0.07 m × k without the map
 
 
+def _need_nav2_amcl() -> None:
+    from fusion.bench.nav2_amcl import LIBRARY
+
+    if not LIBRARY.exists():
+        pytest.skip(f"nav2's AMCL is not built ({LIBRARY}): `make peers` builds it (make test "
+                    "runs it), from the amcl source distribution on PyPI, with a C++ compiler")
+
+
 def test_amcls_integrity_is_the_spread_of_its_particles():
     """The benchmark scores AMCL's reported covariance as houghloc's spread (mode 1): the
     particles drawn around a pose with σ 0.5 m, 0.2 m and 0.1 rad give that covariance back,
     axis by axis, and a probability of being within 0.3 m and 5° well below 0.95."""
-    amcl = pytest.importorskip("amcl", reason="the peers extra is not installed")
-    from fusion.bench.methods import _amcl_covariance
+    _need_nav2_amcl()
+    from fusion.bench.methods import AMCL_NAV2
+    from fusion.bench.nav2_amcl import Nav2Amcl
     from fusion.integrity import localized_probability
 
-    beams = amcl.LaserParameters(0.5, 0.05, 0.05, 0.5, 0.2, 0.1, 0.05, 60)
-    filt = amcl.AMCL(500, 2000, 0.0, 0.0, amcl.MotionParameters(0.2, 0.2, 0.2, 0.2, 0.2),
-                     beams, "differential")
-    grid = amcl.OccupancyGrid(100, 100, 0.1, -5.0, -5.0)
-    grid.data = [0] * 10_000
-    filt.set_map(grid)
-    cov = amcl.Matrix3D()
-    for i, v in enumerate((0.25, 0.04, 0.01)):
-        cov.set(i, i, v)
-    filt.set_initial_pose(amcl.Vector3D(1.0, 2.0, 0.3), cov)
-    got = _amcl_covariance(filt)
+    filt = Nav2Amcl(min_particles=500, max_particles=2000, alpha_slow=0.0, alpha_fast=0.0,
+                    alpha=(0.2,) * 5)
+    filt.set_map(np.zeros((100, 100), dtype=np.int8), 0.1, (-5.0, -5.0), "likelihood_field",
+                 AMCL_NAV2, 60)
+    filt.init_pose(np.array([1.0, 2.0, 0.3]), np.diag([0.25, 0.04, 0.01]))
+    mean, got, weighted = filt.estimate()
+    assert weighted
+    np.testing.assert_allclose(mean, [1.0, 2.0, 0.3], atol=0.1)
     np.testing.assert_allclose(np.diag(got), [0.25, 0.04, 0.01], rtol=0.25)
     assert abs(got[0, 1]) < 0.02
     assert localized_probability(got, 1.0) < 0.5
+    assert len(filt.particles()) == 2000  # pf_init draws max_particles
+
+
+def test_nav2_amcl_finds_the_office_pose_with_its_likelihood_field(office_run):
+    """nav2's own filter through the binding, run as the benchmark runs it, on the simulated
+    office's map drawn as a grid: started 0.4 m and 10° off with RViz's spread, its heaviest
+    cluster is within 5 cm of the truth from 10 s on, and its covariance has shrunk. A wrong
+    map orientation, laser mount or bearing sign leaves it off."""
+    _need_nav2_amcl()
+    from fusion.bench.data import RunData, pose_near, scan_stamp
+    from fusion.bench.methods import localize
+    from fusion.bench.spec import apply_settings
+
+    spec = load_spec(_office_spec(office_run, ["amcl-tuned"], ["same-run"]))
+    data = RunData.load(spec.runs[0], spec.max_dt)
+    piece = data.pieces(Protocol.SAME_RUN)[0]
+    assert piece.start is not None
+    off = dataclasses.replace(piece, start=piece.start + np.array([0.3, -0.25, 0.17]))
+    done = localize(Method.AMCL_TUNED, off, apply_settings(spec.runs[0].config, {}))
+    errors = []
+    for scan, pose in zip(off.scans, done.trajectory.poses, strict=True):
+        truth = pose_near(data.reference, scan_stamp(scan), spec.max_dt)
+        errors.append(np.hypot(*(pose[:2] - truth[:2])))
+    t = done.trajectory.t - done.trajectory.t[0]
+    assert errors[0] > 0.25
+    assert max(e for e, ti in zip(errors, t, strict=True) if ti >= 10.0) < 0.05
+    assert done.probability is not None and done.probability[-1] > done.probability[0]
+
+
+def test_a_peer_lost_from_the_known_start_is_marked_suspect():
+    """The peers' sanity gate: where the tuned AMCL is lost on more than 5 % of a log's scans
+    from the known start on its same-run map, every AMCL row of that log says suspect; the
+    other logs' rows and houghloc's do not."""
+    from fusion.bench.report import summary_markdown, suspect
+
+    def row(run: str, method: str, protocol: str, lost: float) -> dict:
+        return {"run": run, "method": method, "protocol": protocol, "settings": "{}",
+                "status": "ok", "lost_frac": str(lost), "ate_rmse_m": "0.1", "scans": "10",
+                "cpu_ms_per_scan": "1.0"}
+
+    rows = [row("a", "amcl-tuned", "same-run", 0.08), row("a", "amcl", "held-out-map", 0.9),
+            row("a", "houghloc", "same-run", 0.0), row("b", "amcl-tuned", "same-run", 0.05),
+            row("b", "amcl", "same-run", 0.9)]
+    assert suspect(rows) == {("a", "amcl"), ("a", "amcl-tuned"), ("a", "amcl-beam")}
+    text = summary_markdown(rows)
+    assert "**Suspect** (a)" in text
+    assert text.count("· suspect") == 2  # a's amcl-tuned same-run and amcl held-out cells

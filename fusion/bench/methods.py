@@ -7,8 +7,9 @@ excluded).
 * ``odometry``: dead reckoning from the start pose.
 * ``icp``: scan-to-map point-to-point ICP (``small_gicp``) on the map's points, each scan
   started from the last estimate moved by the odometry since.
-* ``amcl``/``amcl-tuned``: nav2's AMCL (the ``amcl`` wheel: nav2_amcl's particle filter, motion
-  model and *beam* sensor model; the wheel has no likelihood field) run as the nav2 node runs
+* ``amcl``/``amcl-tuned``/``amcl-beam``: nav2's AMCL (:mod:`fusion.bench.nav2_amcl`: nav2_amcl's
+  own particle filter, motion model and likelihood field, or its beam model for ``amcl-beam``;
+  the pose is the heaviest cluster's mean, as nav2 publishes) run as the nav2 node runs
   it: the filter is updated only once the odometry moved ``update_min_d`` or turned
   ``update_min_a`` since the last update (and on the first scan), resampling on every update
   (nav2's ``resample_interval: 1``), and between updates the pose is the last estimate carried
@@ -56,7 +57,8 @@ class Localized:
 def localize(method: Method, piece: Piece, config: LocalizerConfig) -> Localized:
     """Run ``method`` on ``piece``; ``config`` is houghloc's (the peers read only its sensor)."""
     runner = {Method.HOUGHLOC: _houghloc, Method.ODOMETRY: _odometry, Method.ICP: _icp,
-              Method.AMCL: _amcl, Method.AMCL_TUNED: _amcl, Method.MRPT: _mrpt}[method]
+              Method.AMCL: _amcl, Method.AMCL_TUNED: _amcl, Method.AMCL_BEAM: _amcl,
+              Method.MRPT: _mrpt}[method]
     return runner(piece, config, method)
 
 
@@ -182,52 +184,65 @@ def _matrix_to_se2(m: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 AMCL_NAV2: dict[str, Any] = {
-    "min_particles": 500, "max_particles": 2000, "alpha_slow": 0.0, "alpha_fast": 0.0,
+    "laser_model_type": "likelihood_field", "min_particles": 500, "max_particles": 2000,
+    "recovery_alpha_slow": 0.0, "recovery_alpha_fast": 0.0, "pf_err": 0.05, "pf_z": 0.99,
     "alpha": (0.2, 0.2, 0.2, 0.2, 0.2), "z_hit": 0.5, "z_short": 0.05, "z_max": 0.05,
-    "z_rand": 0.5, "sigma_hit": 0.2, "lambda_short": 0.1, "chi_outlier": 0.05, "max_beams": 60,
+    "z_rand": 0.5, "sigma_hit": 0.2, "lambda_short": 0.1, "chi_outlier": 0.05,
+    "laser_likelihood_max_dist": 2.0, "max_beams": 60, "resample_interval": 1,
     "update_min_d": 0.25, "update_min_a": 0.2, "initial_sigma_xy": 0.5,
     "initial_sigma_theta": math.radians(15.0),
 }
-"""nav2_amcl's defaults (nav2_params.yaml; the initial covariance is RViz's 2D Pose Estimate
-default), with the beam model's defaults since the wheel has no likelihood field."""
+"""nav2_amcl's defaults (nav2_bringup's nav2_params.yaml, by nav2's names; the initial covariance
+is RViz's 2D Pose Estimate default)."""
 
 AMCL_TUNED = AMCL_NAV2 | {
-    "alpha": (0.1, 0.05, 0.1, 0.05, 0.1), "z_hit": 0.9, "z_rand": 0.05, "sigma_hit": 0.05,
-    "max_beams": 90, "update_min_d": 0.1, "update_min_a": 0.1,
+    "alpha": (0.02, 0.02, 0.02, 0.02, 0.02), "z_hit": 0.9, "z_rand": 0.1, "sigma_hit": 0.1,
+    "max_beams": 90, "update_min_d": 0.1, "update_min_a": 0.1, "min_particles": 1000,
+    "max_particles": 5000,
 }
-"""One set for every building: finer updates and a sharper beam model (cm-accurate walls),
-quieter odometry than nav2's conservative defaults."""
+"""One set for every building: finer updates, a sharper likelihood field (the maps' walls are
+within centimetres), quieter odometry than nav2's conservative defaults, more particles. Chosen
+among a few such sets on the same-run maps of all six buildings together (docs/benchmark.md)."""
+
+AMCL_BEAM = AMCL_NAV2 | {"laser_model_type": "beam"}
+"""nav2's defaults with its beam model (nav2's other laser model)."""
+
+AMCL_SETS = {Method.AMCL: AMCL_NAV2, Method.AMCL_TUNED: AMCL_TUNED, Method.AMCL_BEAM: AMCL_BEAM}
+
+AMCL_SEED = 1
+"""The particle filter's random seed: a benchmark run repeats."""
 
 
 def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
-    try:
-        import amcl
-    except ImportError:
-        raise MissingPeer("amcl needs the amcl wheel: pip install 'houghloc[peers]'") from None
-    p = AMCL_TUNED if method is Method.AMCL_TUNED else AMCL_NAV2
+    from fusion.bench.nav2_amcl import Nav2AmclUnavailable
+
+    p = AMCL_SETS[method]
     sensor = laser(config)
-    filt = _make_amcl(amcl, p, piece, sensor)
+    try:
+        filt = _make_amcl(p, piece, sensor)
+    except Nav2AmclUnavailable as error:
+        raise MissingPeer(str(error)) from None
+    odometry_at = _OdometryAt(piece.events)
     last_update_odom: NDArray[np.float64] | None = None
     at_update = np.zeros(3)
     probability = 0.0
-    odom = np.zeros(3)  # no reading yet: the odometry frame's origin
     t, poses, probabilities = [], [], []
     cpu = time.process_time()
     for e in piece.events:
-        if isinstance(e, Odometry):
-            if math.isfinite(e.x + e.y + e.theta):
-                odom = np.array((e.x, e.y, e.theta))
-            continue
         if not isinstance(e, Scan):
             continue
+        odom = odometry_at(e.t)
         # nav2's test: the odometry-frame difference, per axis
         moved = None if last_update_odom is None else odom - last_update_odom
         if moved is None or (abs(moved[0]) > p["update_min_d"] or abs(moved[1]) > p["update_min_d"]
                              or abs(math.remainder(moved[2], math.tau)) > p["update_min_a"]):
-            filt.update(_amcl_scan(amcl, e, sensor), amcl.Vector3D(*odom))
-            m = filt.get_pose_mean()
-            at_update, last_update_odom = np.array((m.x, m.y, m.theta)), odom
-            probability = localized_probability(_amcl_covariance(filt), 1.0)
+            ranges, bearings, range_max = _amcl_scan(e, sensor)
+            filt.update(odom, ranges, bearings, range_max)
+            mean, cov, weighted = filt.estimate()
+            if weighted or last_update_odom is None:
+                at_update = mean
+            last_update_odom = odom
+            probability = localized_probability(cov, 1.0)
         # between updates, nav2 publishes the last estimate moved by the odometry since
         assert last_update_odom is not None
         t.append(scan_stamp(e))
@@ -237,42 +252,52 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
                      time.process_time() - cpu, probability=np.array(probabilities))
 
 
-def _amcl_covariance(filt: Any) -> NDArray[np.float64]:
-    """The covariance nav2 publishes with ``amcl_pose`` (that of its particles' pose), as a
-    3×3 array: a user of AMCL judges whether the robot is localized from it, and the benchmark
-    scores it as houghloc's spread (:func:`fusion.integrity.localized_probability`, mode 1)."""
-    c = filt.get_pose_covariance()
-    return np.array([[c.get(i, j) for j in range(3)] for i in range(3)], dtype=float)
+class _OdometryAt:
+    """The odometry pose at a time, interpolated between the readings around it, as nav2's
+    AMCL looks up ``odom → base`` in tf at a scan's stamp (its message filter holds the scan
+    until tf has it); before the first reading, the odometry frame's origin."""
+
+    def __init__(self, events: tuple[Any, ...]) -> None:
+        readings = [(e.t, e.x, e.y, e.theta) for e in events
+                    if isinstance(e, Odometry) and math.isfinite(e.x + e.y + e.theta)]
+        r = np.array(readings, dtype=float).reshape(-1, 4)
+        self.t = r[:, 0]
+        self.xy = r[:, 1:3]
+        self.theta = np.unwrap(r[:, 3])
+
+    def __call__(self, t: float) -> NDArray[np.float64]:
+        if len(self.t) == 0:
+            return np.zeros(3)
+        x = np.interp(t, self.t, self.xy[:, 0])
+        y = np.interp(t, self.t, self.xy[:, 1])
+        return np.array((x, y, math.remainder(float(np.interp(t, self.t, self.theta)), math.tau)))
 
 
-def _make_amcl(amcl: Any, p: dict[str, Any], piece: Piece, sensor: SensorConfig) -> Any:
-    motion = amcl.MotionParameters(*p["alpha"])
-    beams = amcl.LaserParameters(p["z_hit"], p["z_short"], p["z_max"], p["z_rand"],
-                                 p["sigma_hit"], p["lambda_short"], p["chi_outlier"],
-                                 p["max_beams"])
-    filt = amcl.AMCL(p["min_particles"], p["max_particles"], p["alpha_slow"], p["alpha_fast"],
-                     motion, beams, "differential")
+def _make_amcl(p: dict[str, Any], piece: Piece, sensor: SensorConfig) -> Any:
+    """nav2's AMCL on the piece's grid, started as its users start it: RViz's 2D Pose Estimate
+    at the start pose, or ``reinitialize_global_localization`` (particles over the free cells)
+    for a global start. The covariance it publishes with ``amcl_pose`` (its particles' spread)
+    is what its users judge localization by; the benchmark scores it as houghloc's spread
+    (:func:`fusion.integrity.localized_probability`, mode 1)."""
+    from fusion.bench.nav2_amcl import Nav2Amcl
+
+    filt = Nav2Amcl(min_particles=p["min_particles"], max_particles=p["max_particles"],
+                    alpha_slow=p["recovery_alpha_slow"], alpha_fast=p["recovery_alpha_fast"],
+                    alpha=p["alpha"], pf_err=p["pf_err"], pf_z=p["pf_z"],
+                    resample_interval=p["resample_interval"], seed=AMCL_SEED)
     grid = piece.map_source.grid
-    rows, cols = grid.shape
-    occ = amcl.OccupancyGrid(cols, rows, grid.resolution, grid.origin[0], grid.origin[1])
     data = np.full(grid.shape, -1, dtype=np.int8)
     data[grid.free] = 0
     data[grid.occupied] = 100
-    occ.data = data.ravel().tolist()  # row-major with x fastest: nav2's cell order
-    filt.set_map(occ)
-    filt.set_laser_pose(amcl.Vector3D(*sensor.mount))
-    cov = amcl.Matrix3D()
-    if piece.start is None:  # global start: a Gaussian as wide as the map, headings uniform-ish
-        x0, x1, y0, y1 = grid.extent
-        mean = amcl.Vector3D(0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0)
-        for i, v in enumerate((((x1 - x0) / 2) ** 2, ((y1 - y0) / 2) ** 2, math.pi**2)):
-            cov.set(i, i, v)
+    filt.set_map(data, grid.resolution, (grid.origin[0], grid.origin[1]),
+                 p["laser_model_type"], p, p["max_beams"])
+    filt.set_laser_pose(np.asarray(sensor.mount, dtype=float))
+    if piece.start is None:
+        filt.init_global()
     else:
-        mean = amcl.Vector3D(*piece.start)
-        for i, v in enumerate((p["initial_sigma_xy"] ** 2, p["initial_sigma_xy"] ** 2,
-                               p["initial_sigma_theta"] ** 2)):
-            cov.set(i, i, v)
-    filt.set_initial_pose(mean, cov)
+        filt.init_pose(np.asarray(piece.start, dtype=float),
+                       np.diag((p["initial_sigma_xy"] ** 2, p["initial_sigma_xy"] ** 2,
+                                p["initial_sigma_theta"] ** 2)))
     return filt
 
 
@@ -286,9 +311,11 @@ def _mrpt(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
     return Localized(trajectory, cpu)
 
 
-def _amcl_scan(amcl: Any, scan: Scan, sensor: SensorConfig) -> Any:
+def _amcl_scan(scan: Scan, sensor: SensorConfig
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+    """The scan as nav2 gives it to the filter: ranges beyond the laser's range (or not finite)
+    become its maximum, which the models ignore or score as max readings."""
     max_range = float(min(sensor.max_range, scan.max_range))
     ranges = np.asarray(scan.ranges, dtype=float)
     ranges = np.where(np.isfinite(ranges) & (ranges < max_range), ranges, max_range)
-    return amcl.create_laser_scan_from_list(
-        np.column_stack((ranges, np.asarray(scan.angles, dtype=float))).tolist(), max_range)
+    return ranges, np.asarray(scan.angles, dtype=float), max_range

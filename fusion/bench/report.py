@@ -18,6 +18,25 @@ from fusion.bench.data import COVERED_DISTANCE, COVERED_SHARE
 from fusion.bench.spec import Protocol
 from fusion.bench.task import LOST_HEADING_DEG, LOST_POSITION
 
+PEER_SANITY_LOST = 0.05
+"""The peers' sanity gate: a tuned peer lost on more than this share of a log's scans, from the
+known start on the map built from that very run, is more likely run wrong (or fed data it cannot
+take) than beaten fairly; its rows for that log are marked suspect."""
+GATED_PEERS = {"amcl-tuned": ("amcl", "amcl-tuned", "amcl-beam")}
+"""The tuned set the gate judges → the methods of the same peer whose rows it marks."""
+
+
+def suspect(rows: Sequence[dict[str, Any]]) -> set[tuple[str, str]]:
+    """(log, method) of the peers' rows that fail the sanity gate (:data:`PEER_SANITY_LOST`)."""
+    marked: set[tuple[str, str]] = set()
+    for r in rows:
+        if (r.get("status") == "ok" and r["method"] in GATED_PEERS
+                and r["protocol"] == Protocol.SAME_RUN.value
+                and r.get("settings", "{}") in ("", "{}")
+                and not _f(r, "lost_frac") <= PEER_SANITY_LOST):
+            marked.update((r["run"], m) for m in GATED_PEERS[r["method"]])
+    return marked
+
 
 def _f(row: dict[str, Any], key: str) -> float:
     try:
@@ -53,6 +72,7 @@ def matrix_markdown(rows: Sequence[dict[str, Any]]) -> str:
     until right and staying right."""
     ok = [r for r in rows if r.get("status") == "ok"]
     labels = sorted({_label(r) for r in ok}, key=lambda m: (m != "houghloc", m))
+    marked = suspect(rows)
     out = io.StringIO()
     for protocol in Protocol:
         these = {(r["run"], _label(r)): r for r in ok if r["protocol"] == protocol.value}
@@ -76,7 +96,8 @@ def matrix_markdown(rows: Sequence[dict[str, Any]]) -> str:
                     if protocol is Protocol.HELD_OUT_MAP:
                         lost += f" ({_pct(_f(r, 'lost_covered_frac'))})"
                     cells.append(f"{_length(_f(r, 'ate_rmse_m'))} · {lost} · "
-                                 f"{_ms(_f(r, 'cpu_ms_per_scan'))}")
+                                 f"{_ms(_f(r, 'cpu_ms_per_scan'))}"
+                                 + (" · suspect" if (run, r["method"]) in marked else ""))
             out.write(f"| {run} | " + " | ".join(cells) + " |\n")
     return out.getvalue()
 
@@ -94,6 +115,13 @@ def summary_markdown(rows: Sequence[dict[str, Any]]) -> str:
     out.write("Each cell: ATE RMSE · lost % (held out: over covered poses in brackets) · CPU "
               "per scan. Worst 10 s: the largest mean CPU per scan over any 10 s of log.\n")
     out.write(matrix_markdown(rows))
+    marked = suspect(rows)
+    if marked:
+        logs = ", ".join(sorted({run for run, _ in marked}))
+        out.write(f"\n**Suspect** ({logs}): the tuned peer is lost on more than "
+                  f"{PEER_SANITY_LOST:.0%} of the log's scans from the known start on the map "
+                  "built from the same run; its rows there say more about how it was run, or "
+                  "what the log gives it, than about the peer.\n\n")
     out.write(f"Lost: more than {LOST_POSITION} m or {LOST_HEADING_DEG:g}° from the reference. "
               f"Covered: at least {COVERED_SHARE:.0%} of the scan's points, at the reference "
               f"pose, within {COVERED_DISTANCE * 100:.0f} cm of the points the map was built "
@@ -110,7 +138,8 @@ def summary_markdown(rows: Sequence[dict[str, Any]]) -> str:
         head += ["CPU ms/scan", "worst 10 s"]
         out.write("| " + " | ".join(head) + " |\n|" + "---|" * len(head) + "\n")
         for r in sorted(these, key=lambda r: (r["run"], _label(r))):
-            cells = [r["run"], _label(r), r["scans"], _length(_f(r, "ate_rmse_m")),
+            label = _label(r) + (" (suspect)" if (r["run"], r["method"]) in marked else "")
+            cells = [r["run"], label, r["scans"], _length(_f(r, "ate_rmse_m")),
                      _length(_f(r, "ate_max_m")), _pct(_f(r, "lost_frac")),
                      _pct(_f(r, "lost_covered_frac")), _pct(_f(r, "covered_frac"))]
             if relations:

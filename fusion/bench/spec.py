@@ -61,9 +61,11 @@ class Method(StrEnum):
     ICP = "icp"
     """Scan-to-map point-to-point ICP (small_gicp), started from the odometry prediction."""
     AMCL = "amcl"
-    """nav2's AMCL (the ``amcl`` wheel) with nav2's default parameters."""
+    """nav2's AMCL (nav2_amcl's own code) with nav2's default parameters: likelihood field."""
     AMCL_TUNED = "amcl-tuned"
     """The same AMCL with one parameter set tuned over all the buildings."""
+    AMCL_BEAM = "amcl-beam"
+    """nav2's AMCL with its defaults and its beam model."""
     MRPT = "mrpt"
     """MRPT's pf-localization (Debian package mrpt-apps), likelihood field."""
 
