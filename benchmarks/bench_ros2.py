@@ -22,6 +22,7 @@ import threading
 import time
 from array import array
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
@@ -100,7 +101,9 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
         set_stamp,
         stamp_seconds,
     )
-    from fusion.ros2.node import LATCHED, LocalizerNode
+    from fusion.ros2.node import LocalizerNode
+    from fusion.ros2.outputs import LATCHED
+    from fusion.ros2.settings import NodeSettings
 
     resets = {0: run.scan_truth[0], **(resets or {})}
     out = NodeRun()
@@ -118,7 +121,7 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
              separate], env={**os.environ, "ROS_DOMAIN_ID": str(domain)},
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         rclpy.init(context=context, domain_id=domain)
-        tolerance = 0.1  # the node's default transform_tolerance
+        tolerance = NodeSettings().transform_tolerance  # the node's default
     client = rclpy.create_node("houghloc_client", context=context)
 
     def on_pose(msg: PoseWithCovarianceStamped) -> None:
@@ -141,7 +144,7 @@ def stream_through_node(run: SimRun, ranges: NDArray[np.float64], config: Locali
     def on_localized(msg: Float32) -> None:
         out.localized.append(float(msg.data))
 
-    pose_sub = client.create_subscription(PoseWithCovarianceStamped, "houghloc/pose", on_pose,
+    pose_sub = client.create_subscription(PoseWithCovarianceStamped, "amcl_pose", on_pose,
                                           100)
     tf_sub = client.create_subscription(TFMessage, "/tf", on_tf, 100)
     every_state = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
@@ -296,6 +299,69 @@ def plot(run: SimRun, result: NodeRun, resets: dict[int, NDArray[np.float64]],
     plt.close(fig)
 
 
+GRID_CELLS = 2000
+"""The map topic's grid side for the timing: 2000 × 2000 cells (100 m square at 5 cm)."""
+
+
+def time_map_topic(names: tuple[str, ...] = ("aces", "intel", "fr079")) -> dict[str, float]:
+    """Seconds from a ``map_server`` grid of 2000 × 2000 cells to the node's segment map (the
+    message converted, the walls extracted), for the real buildings' same-run grids padded to
+    that size, beside nav2's AMCL computing its likelihood field from the same grid."""
+    import time as clock
+
+    from nav_msgs.msg import OccupancyGrid as GridMessage
+
+    from fusion.bench.data import RunData
+    from fusion.bench.spec import Protocol, load_spec
+    from fusion.mapping import OccupancyGrid
+    from fusion.mapping.segments import extract_segments
+    from fusion.ros2.messages import grid_from_message, set_grid
+    from fusion.ros2.node import MIN_WALL_LENGTH
+
+    spec = load_spec(Path(__file__).with_name("real.yaml"))
+    times = {}
+    for run in (r for r in spec.runs if r.name in names and r.log.exists()):
+        grid = RunData.load(run, spec.max_dt).pieces(Protocol.SAME_RUN)[0].map_source.grid
+        occupied = np.zeros((GRID_CELLS, GRID_CELLS), dtype=bool)
+        free = np.zeros_like(occupied)
+        rows, cols = min(grid.shape[0], GRID_CELLS), min(grid.shape[1], GRID_CELLS)
+        occupied[:rows, :cols] = grid.occupied[:rows, :cols]
+        free[:rows, :cols] = grid.free[:rows, :cols]
+        msg = set_grid(GridMessage(), OccupancyGrid.from_masks(occupied, free, grid.resolution,
+                                                               grid.origin))
+        started = clock.perf_counter()
+        segments = extract_segments(grid_from_message(msg, GRID_CELLS**2), MIN_WALL_LENGTH)
+        times[run.name] = clock.perf_counter() - started
+        peer = _nav2_field_seconds(msg)
+        ratio = f"{times[run.name] / peer:.2f}× nav2 AMCL's likelihood field ({peer:.2f} s)" \
+            if peer == peer else "nav2's AMCL not built (make peers)"
+        print(f"  {run.name:6s} grid {GRID_CELLS} × {GRID_CELLS}: {len(segments)} walls in "
+              f"{times[run.name]:.2f} s; {ratio}")
+    if not times:
+        print("  real logs not found: nothing timed")
+    return times
+
+
+def _nav2_field_seconds(msg) -> float:
+    """nav2's AMCL taking the same grid (its likelihood field up to 2 m), NaN when not built."""
+    import time as clock
+
+    from fusion.bench.methods import AMCL_NAV2
+    from fusion.bench.nav2_amcl import Nav2Amcl, Nav2AmclUnavailable
+
+    try:
+        filt = Nav2Amcl(min_particles=500, max_particles=2000, alpha_slow=0.0, alpha_fast=0.0,
+                        alpha=AMCL_NAV2["alpha"])
+    except Nav2AmclUnavailable:
+        return math.nan
+    data = np.asarray(msg.data, dtype=np.int8).reshape(msg.info.height, msg.info.width)
+    started = clock.perf_counter()
+    filt.set_map(data, msg.info.resolution, (msg.info.origin.position.x,
+                                             msg.info.origin.position.y),
+                 "likelihood_field", AMCL_NAV2, AMCL_NAV2["max_beams"])
+    return clock.perf_counter() - started
+
+
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=60.0, help="simulated seconds")
@@ -303,6 +369,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--rrd", metavar="FILE", help="record the node's run for Rerun")
     parser.add_argument("--separate", action="store_true",
                         help="the node as `houghloc ros2` in its own process, as on a robot")
+    parser.add_argument("--grid", action="store_true",
+                        help="only time the map topic's grid → segment map (2000 × 2000 cells)")
     args = parser.parse_args(argv)
     try:
         import rclpy  # noqa: F401
@@ -310,6 +378,9 @@ def main(argv: list[str] | None = None) -> dict:
     except ImportError as exc:
         print(f"not available: {exc} (make ros2 installs the ros2 extra and tf2_msgs)")
         return {}
+    if args.grid:
+        print("map topic → segment map")
+        return time_map_topic()
     run, ranges = office_run(args.duration)
     config = LocalizerConfig.from_yaml("office-laser")
     middle = len(run.scan_t) // 2

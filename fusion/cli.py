@@ -6,7 +6,7 @@
     houghloc eval --est EST.tum --gt GT [--relations FILE --time-offset S]
     houghloc map build (--log CORRECTED_LOG | --grid ROS_MAP.yaml) --out MAP.yaml
     houghloc sweep --spec SPEC.yaml --out DIR [--scheduler tcp://HOST:PORT] [--workers N]
-    houghloc ros2 --map M [--config C] [--initial-pose X Y THETA] [--ros-args ...]
+    houghloc ros2 [--map M] [--config C] [--initial-pose X Y THETA] [--managed] [--ros-args ...]
     houghloc config (--defaults | --show CFG | --reference)
 """
 
@@ -267,21 +267,21 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     from houghloc import SegmentMap
 
     try:
-        from fusion.ros2.node import run_node
+        from fusion.ros2.run import run_node
     except ImportError as exc:
         raise CliError(f"the ROS 2 node needs the ros2 extra: pip install 'houghloc[ros2]' "
                        f"({exc})") from None
-    config = LocalizerConfig.from_yaml(
-        None if args.config is None else _packaged(args.config, "config"))
-    segment_map = SegmentMap.from_yaml(_packaged(args.map, "map"))
-    initial_pose = _initial_pose(args, config)
+    config = None if args.config is None else \
+        LocalizerConfig.from_yaml(_packaged(args.config, "config"))
+    segment_map = None if args.map is None else SegmentMap.from_yaml(_packaged(args.map, "map"))
+    initial_pose = _initial_pose(args, config or LocalizerConfig())
     logger: Any = NullLogger()
     if args.rrd is not None or args.serve:
         from fusion.rerun_logger import RerunLogger
 
         logger = RerunLogger(args.rrd, serve=args.serve)
     try:
-        return run_node(segment_map, config, initial_pose, logger, args.ros_args)
+        return run_node(segment_map, config, initial_pose, logger, args.ros_args, args.managed)
     finally:
         logger.close()
 

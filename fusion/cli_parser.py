@@ -122,19 +122,30 @@ def build_parser(version: str) -> argparse.ArgumentParser:
     sw.set_defaults(handler="sweep")
 
     ros2 = sub.add_parser(
-        "ros2", help="run the ROS 2 node (pip install 'houghloc[ros2]')",
-        description="Localize on a robot: subscribe scan, odom, initialpose and /tf_static; "
-        "publish houghloc/pose (PoseWithCovarianceStamped, as amcl_pose), map -> odom on /tf and "
-        "houghloc/state. ROS arguments follow --ros-args, e.g. --ros-args -r scan:=/base_scan "
-        "-p base_frame:=base_link (parameters: map_frame, odom_frame, base_frame, scan_topic, "
-        "odom_topic, publish_tf, transform_tolerance, odom_wait).")
-    ros2.add_argument("--map", required=True, type=Path,
-                      help="segment map YAML, or a packaged map's name")
+        "ros2", help="run the ROS 2 node, a drop-in for nav2's AMCL (pip install "
+        "'houghloc[ros2]')",
+        description="Localize on a robot, in place of nav2's AMCL: a lifecycle node that takes "
+        "scan, odom, initialpose, /tf_static and the map topic (map_server's OccupancyGrid) "
+        "and publishes amcl_pose, map -> odom on /tf, particle_cloud (PoseArray), "
+        "houghloc/localized, houghloc/state and /diagnostics; services "
+        "reinitialize_global_localization and request_nomotion_update. ROS arguments follow "
+        "--ros-args, e.g. --ros-args --params-file nav2_params.yaml -r __node:=amcl: AMCL's "
+        "parameters by AMCL's names (base_frame_id, odom_frame_id, global_frame_id, scan_topic, "
+        "map_topic, set_initial_pose, initial_pose.{x,y,yaw}, always_reset_initial_pose, "
+        "first_map_only, transform_tolerance, tf_broadcast, initialize_at_saved_pose, "
+        "saved_pose_filepath), houghloc's under houghloc.* (docs/ros2.md).")
+    ros2.add_argument("--map", type=Path,
+                      help="segment map YAML, or a packaged map's name (default: houghloc.map, "
+                           "else built from the map topic)")
     ros2.add_argument("--config", type=Path,
-                      help="localizer YAML or a packaged config's name (default: the defaults)")
+                      help="localizer YAML or a packaged config's name (default: "
+                           "houghloc.config, else the defaults)")
     ros2.add_argument("--initial-pose", nargs=3, type=float, metavar=("X", "Y", "THETA"),
-                      help="start here (default: the config's initial_pose, else global "
-                           "localization until /initialpose)")
+                      help="start here (default: the config's initial_pose, else the saved "
+                           "pose, else global localization until /initialpose)")
+    ros2.add_argument("--managed", action="store_true",
+                      help="wait for a lifecycle manager (nav2's) to configure and activate "
+                           "the node (default: configure and activate at once)")
     ros2.add_argument("--rrd", type=Path, help="also record the run to this Rerun file")
     ros2.add_argument("--serve", action="store_true",
                       help="also serve the Rerun web viewer on localhost")

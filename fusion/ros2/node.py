@@ -1,146 +1,244 @@
-"""The ROS 2 node: the same :class:`~fusion.Localizer` as ``houghloc run``, fed from topics.
+"""The ROS 2 node: the same :class:`~fusion.Localizer` as ``houghloc run``, fed from topics, as a
+managed (lifecycle) node that nav2's lifecycle manager starts in place of AMCL.
 
-    /scan (sensor_msgs/LaserScan) ──▶ held until odometry reaches its stamp ──▶ Localizer.on_scan
-    /odom (nav_msgs/Odometry) ──────▶ Localizer.on_odometry
-    /initialpose (PoseWithCovarianceStamped, as RViz sends it) ──▶ a new Localizer at that pose
-    /tf_static ──▶ the laser's mount on the robot (base_frame → the scans' frame_id)
+    scan (LaserScan; several: houghloc.scan_topics) ─▶ held until odometry reaches its stamp ─▶
+                                                       Localizer.on_scan
+    odom (nav_msgs/Odometry) ─────────▶ Localizer.on_odometry
+    initialpose (PoseWithCovarianceStamped, RViz's 2D Pose Estimate) ─▶ a new Localizer there
+    map (OccupancyGrid, transient local, as map_server) ─▶ the segment map, unless --map
+    /tf_static ─▶ each laser's mount on the robot (base_frame_id → the scan's frame_id)
 
-    houghloc/pose (PoseWithCovarianceStamped, as amcl_pose), /tf map → odom (as AMCL),
-    houghloc/state (std_msgs/String: the ambiguity manager's state, localized or not, and why)
-    houghloc/localized (std_msgs/Float32: the probability that the pose is within 0.3 m and 5°
-    of the truth, with every pose; fusion.integrity)
+    amcl_pose (PoseWithCovarianceStamped; houghloc.pose_topic), /tf map → odom (as AMCL),
+    particle_cloud (PoseArray: the hypotheses followed, or the one pose),
+    houghloc/localized (Float32: the probability that the pose is within 0.3 m and 5° of the
+    truth, fusion.integrity), houghloc/state (String), /diagnostics (DiagnosticArray, 1 Hz)
+
+    services: reinitialize_global_localization, request_nomotion_update (std_srvs/Empty)
+
+Lifecycle, as nav2's AMCL: *configure* reads the parameters (:mod:`fusion.ros2.settings`), loads
+the map and config and creates the publishers, subscriptions and services; *activate* chooses
+where to start (``set_initial_pose``, else a recent saved pose, else global localization) and
+lets scans through; *deactivate* stops taking scans; *cleanup* drops all of it. ``houghloc ros2``
+configures and activates the node itself unless ``--managed``.
 
 A scan waits for the odometry at its time (as AMCL waits for the odom → base transform) at most
-``odom_wait`` seconds, so that the filter predicts to the scan before the scan corrects it; a
-robot without odometry therefore costs that much latency. The ``map → odom`` transform is dated
-``transform_tolerance`` ahead of the scan, as AMCL does, so that tf users can look it up until
-the next scan.
+``houghloc.odom_wait`` seconds, so that the filter predicts to the scan before the scan corrects
+it; a robot without odometry therefore costs that much latency.
 """
 
 from __future__ import annotations
 
 import math
-import signal
-import sys
-import threading
 import time
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import rclpy
-from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import OccupancyGrid as OccupancyGridMsg
 from nav_msgs.msg import Odometry as OdometryMsg
 from numpy.typing import NDArray
-from rclpy.node import Node
-from rclpy.qos import (
-    DurabilityPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-    qos_profile_sensor_data,
-)
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import LaserScan
-from std_msgs.msg import Float32, String
+from std_srvs.srv import Empty
 
 from fusion.config import LocalizerConfig
 from fusion.events import Scan
-from fusion.integrity import is_localized
 from fusion.io.rosbag import StaticTree, odometry_event, scan_event
 from fusion.localizer import Estimate, Localizer
-from fusion.ros2.messages import (
-    map_to_odom,
-    planar_covariance,
-    planar_pose,
-    ros_covariance,
-    set_planar_pose,
-    set_planar_transform,
-    set_stamp,
-)
+from fusion.ros2.messages import planar_covariance, planar_pose
+from fusion.ros2.outputs import LATCHED, Outputs
+from fusion.ros2.saved_pose import load_pose, save_pose
+from fusion.ros2.settings import NodeSettings, declare, read
 from fusion.ros2.tf2_msgs import available as tf2_msgs_available
 from fusion.visualize import Logger, NullLogger
 from houghloc import SegmentMap
-from houghloc.geometry import wrap_angle
 
 MAX_INITIAL_SIGMA_XY = 1.0e3
 """m: an initial pose's σ beyond this (a click that means "somewhere") is taken as this."""
+RVIZ_SIGMAS = (0.5, 0.5, math.radians(15.0))
+"""σ of x, y, yaw for a pose from parameters: RViz's 2D Pose Estimate default."""
 PENDING_SCANS = 10
 """Scans held for odometry at most; beyond, the oldest is dropped (the node is behind)."""
 ODOMETRY_KEPT = 1000
 """Odometry readings kept to place map → odom at a scan's time: 10 s at 100 Hz."""
-STOP_CHECK_SECONDS = 0.1
-"""s: how long a signal to stop may wait for the spin to notice it."""
-
-LATCHED = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
-"""/tf_static and the state: a late subscriber still gets the last message."""
+MIN_WALL_LENGTH = 0.5
+"""m: the shortest wall kept from a map topic's grid (``map build``'s default)."""
 
 
 @dataclass
 class _Pending:
     scan: Scan
+    sensor: str
     arrived: float  # monotonic s
 
 
-class LocalizerNode(Node):
-    """A thin adapter: ROS messages in, the Localizer's estimates out; no localization here."""
+class LocalizerNode(LifecycleNode):
+    """A thin adapter: ROS messages in, the Localizer's estimates out; no localization here.
 
-    def __init__(self, segment_map: SegmentMap, config: LocalizerConfig,
+    ``segment_map``/``config``/``initial_pose`` given here (``houghloc ros2 --map …``) take the
+    place of ``houghloc.map``, ``houghloc.config`` and the saved pose."""
+
+    def __init__(self, segment_map: SegmentMap | None = None,
+                 config: LocalizerConfig | None = None,
                  initial_pose: NDArray[np.float64] | None = None,
-                 logger: Logger | None = None, name: str = "houghloc",
+                 logger: Logger | None = None, name: str = "houghloc", autostart: bool = True,
                  **node_options: Any) -> None:
         super().__init__(name, **node_options)
-        self.map, self.config, self.rerun = segment_map, config, logger or NullLogger()
-        if config.laser is None:
-            raise ValueError("the node needs a laser sensor in the config")
-        self.sensor = config.laser
-        p = self._declare_settings()
-        self.map_frame, self.odom_frame, self.base_frame = p["map_frame"], p["odom_frame"], \
-            p["base_frame"]
-        self.transform_tolerance, self.odom_wait = p["transform_tolerance"], p["odom_wait"]
+        declare(self)
+        self._given_map, self._given_config = segment_map, config
+        self._given_pose = None if initial_pose is None else np.asarray(initial_pose, float)
+        self.rerun = logger or NullLogger()
+        self.settings = NodeSettings()
+        self.map: SegmentMap | None = None
+        self.map_source = ""
+        self.config = config or LocalizerConfig()
         self.localizer: Localizer | None = None
-        self._start_pose = None if initial_pose is None else np.asarray(initial_pose, float)
+        self.outputs: Outputs | None = None
+        self._active = False
+        self._entities: list[Any] = []  # what configure made and cleanup destroys
+        self._reset_inputs()
+        self.dropped_scans = 0
+        self.scans = 0
+        if autostart:
+            self.trigger_configure()
+            self.trigger_activate()
+
+    @property
+    def transform_tolerance(self) -> float:
+        return self.settings.transform_tolerance
+
+    def _reset_inputs(self) -> None:
+        self._start_pose: NDArray[np.float64] | None = None
         self._start_cov: NDArray[np.float64] | None = None
+        self._start_reason = "global localization"
         self._pending: deque[_Pending] = deque()
         self._odometry: deque[tuple[float, float, float, float]] = deque(maxlen=ODOMETRY_KEPT)
         self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
         self._static = StaticTree()
-        self._frame = ""  # the scans' frame_id, where the laser is
-        self._state_text = ""
-        self.dropped_scans = 0
-        self.scans = 0
+        self._frames: dict[str, str] = {}  # sensor name → the frame its scans come in
+        self._warned: set[str] = set()
+        self._last: Estimate | None = None  # of the running Localizer
 
-        self.pose_pub = self.create_publisher(PoseWithCovarianceStamped, "houghloc/pose", 10)
-        self.state_pub = self.create_publisher(String, "houghloc/state", LATCHED)
-        self.localized_pub = self.create_publisher(Float32, "houghloc/localized", 10)
-        self.tf_pub = None
+    # ------------------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        s = self.settings = read(self)
+        try:
+            self.config = self._given_config or LocalizerConfig.from_yaml(
+                _packaged(s.houghloc__config, "config") if s.houghloc__config else None)
+            if self.config.laser is None:
+                raise ValueError("the node needs a laser sensor in the config")
+            if self._given_map is not None:
+                self.map, self.map_source = self._given_map, "--map"
+            elif s.houghloc__map:
+                self.map = SegmentMap.from_yaml(_packaged(s.houghloc__map, "map"))
+                self.map_source = s.houghloc__map
+        except (OSError, ValueError) as err:
+            self.get_logger().error(f"configure failed: {err}")
+            return TransitionCallbackReturn.FAILURE
+        self.outputs = Outputs(self, s, tf2_msgs_available())
+        self._entities = self._subscribe(s)
+        return TransitionCallbackReturn.SUCCESS
+
+    def _subscribe(self, s: NodeSettings) -> list[Any]:
+        made: list[Any] = []
         if tf2_msgs_available():
             from tf2_msgs.msg import TFMessage
 
-            self._tf_message = TFMessage
-            # the mount is read whether or not this node publishes map -> odom
-            self.create_subscription(TFMessage, "/tf_static", self._on_tf_static, LATCHED)
-            if p["publish_tf"]:
-                self.tf_pub = self.create_publisher(TFMessage, "/tf", 100)
+            made.append(self.create_subscription(TFMessage, "/tf_static", self._on_tf_static,
+                                                 LATCHED))
         else:
             self.get_logger().warning(
                 "tf2_msgs is not installed: map -> odom is not published on /tf and the laser "
                 "mount comes from the config (python -m fusion.ros2.tf2_msgs builds it)")
-        self.create_subscription(LaserScan, p["scan_topic"], self._on_scan,
-                                 qos_profile_sensor_data)
-        self.create_subscription(OdometryMsg, p["odom_topic"], self._on_odometry, 50)
-        self.create_subscription(PoseWithCovarianceStamped, "initialpose", self._on_initial_pose,
-                                 10)
-        self.create_timer(0.05, self._release_waiting)
-        self._publish_state("lost (waiting for the first scan)" if initial_pose is None
-                            else "tracking (initial pose given)")
+        laser = self.config.laser
+        assert laser is not None
+        for i, topic in enumerate(s.houghloc__scan_topics or (s.scan_topic,)):
+            sensor = laser if i == 0 else f"{laser}_{i}"
+            made.append(self.create_subscription(
+                LaserScan, topic, lambda msg, name=sensor: self._on_scan(msg, name),
+                qos_profile_sensor_data))
+        made.append(self.create_subscription(OdometryMsg, s.houghloc__odom_topic,
+                                             self._on_odometry, 50))
+        made.append(self.create_subscription(PoseWithCovarianceStamped, "initialpose",
+                                             self._on_initial_pose, 10))
+        if self.map is None:
+            made.append(self.create_subscription(OccupancyGridMsg, s.map_topic, self._on_map,
+                                                 LATCHED))
+        made.append(self.create_service(Empty, "reinitialize_global_localization",
+                                        self._on_reinitialize))
+        made.append(self.create_service(Empty, "request_nomotion_update", self._on_nomotion))
+        made.append(self.create_timer(0.05, self._release_waiting))
+        if s.saved_pose_filepath:
+            made.append(self.create_timer(s.houghloc__save_pose_period, self._save_pose))
+        return made
 
-    def _declare_settings(self) -> dict[str, Any]:
-        """ROS parameters with AMCL's names where AMCL has one."""
-        defaults = {"map_frame": "map", "odom_frame": "odom", "base_frame": "base_footprint",
-                    "scan_topic": "scan", "odom_topic": "odom", "publish_tf": True,
-                    "transform_tolerance": 0.1, "odom_wait": 0.25}
-        return {k: self.declare_parameter(k, v).value for k, v in defaults.items()}
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        if self.localizer is None or self.settings.always_reset_initial_pose:
+            self._choose_start()
+        self._active = True
+        assert self.outputs is not None
+        self.outputs.activate(self._start_reason if self.localizer is None else "resumed")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._active = False
+        if self.outputs is not None:
+            self.outputs.state("inactive")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._destroy()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _destroy(self) -> None:
+        self._active = False
+        destroyers: dict[str, Any] = {"Subscription": self.destroy_subscription,
+                                      "Service": self.destroy_service,
+                                      "Timer": self.destroy_timer}
+        for entity in self._entities:
+            destroyers[type(entity).__name__](entity)
+        self._entities = []
+        if self.outputs is not None:
+            self.outputs.destroy()
+            self.outputs = None
+        self.localizer, self.map = None, None
+        self._reset_inputs()
+
+    def _choose_start(self) -> None:
+        """Where the next Localizer starts, as AMCL on activation: the pose of the parameters
+        (``set_initial_pose``), else the one given on the command line, else the saved pose when
+        recent, else global localization."""
+        s = self.settings
+        self.localizer, self._last = None, None
+        self._start_pose = self._start_cov = None
+        self._start_reason = "global localization"
+        if s.set_initial_pose:
+            self._start_pose = np.array((s.initial_pose__x, s.initial_pose__y,
+                                         s.initial_pose__yaw))
+            self._start_cov = np.diag(np.square(RVIZ_SIGMAS))
+            self._start_reason = "initial pose from parameters"
+        elif self._given_pose is not None:
+            self._start_pose, self._start_reason = self._given_pose, "initial pose given"
+        elif s.initialize_at_saved_pose and s.saved_pose_filepath:
+            try:
+                saved = load_pose(s.saved_pose_filepath)
+            except ValueError as err:
+                self.get_logger().info(f"{err}: global localization")
+                return
+            if saved.frame != s.global_frame_id or saved.age() > s.houghloc__saved_pose_max_age:
+                self.get_logger().info(
+                    f"saved pose not used: {saved.age():.0f} s old in frame {saved.frame!r} "
+                    f"(houghloc.saved_pose_max_age {s.houghloc__saved_pose_max_age:g} s)")
+                return
+            self._start_pose, self._start_cov = saved.pose, saved.cov
+            self._start_reason = f"saved pose, {saved.age():.0f} s old"
 
     # ------------------------------------------------------------------------------ inputs
     def _on_odometry(self, msg: OdometryMsg) -> None:
@@ -150,17 +248,21 @@ class LocalizerNode(Node):
             self.get_logger().warning(f"odometry dropped: {err}")
             return
         self._odometry.append((event.t, event.x, event.y, event.theta))
-        if self.localizer is not None:
+        if self.localizer is not None and self._active:
             self.localizer.on_odometry(event.t, event.x, event.y, event.theta)
         self._release(event.t)
 
-    def _on_scan(self, msg: LaserScan) -> None:
-        scan = scan_event(msg, self.sensor, 0, self._angles)
-        self._frame = msg.header.frame_id
+    def _on_scan(self, msg: LaserScan, sensor: str | None = None) -> None:
+        """A scan of ``sensor`` (the config's laser, or the i-th of ``houghloc.scan_topics``)."""
+        if not self._active:
+            return
+        sensor = sensor or self.config.laser or "laser"
+        scan = scan_event(msg, sensor, 0, self._angles)
+        self._frames.setdefault(sensor, msg.header.frame_id.lstrip("/"))
         if len(self._pending) == PENDING_SCANS:
             self._pending.popleft()
             self.dropped_scans += 1
-        self._pending.append(_Pending(scan, time.monotonic()))
+        self._pending.append(_Pending(scan, sensor, time.monotonic()))
         self._release(self._odometry[-1][0] if self._odometry else -math.inf)
 
     def _on_tf_static(self, msg: Any) -> None:
@@ -176,45 +278,88 @@ class LocalizerNode(Node):
         if not (np.isfinite(pose).all() and np.isfinite(cov).all()):
             self.get_logger().warning("initial pose dropped: not finite")
             return
-        self._start_pose, self._start_cov = pose, cov
-        self.localizer = None  # the next scan starts a new one there
-        self._publish_state("tracking (initial pose received)")
+        self._restart(pose, cov, "initial pose received")
         self.get_logger().info(f"initial pose x {pose[0]:.2f} y {pose[1]:.2f} "
                                f"θ {pose[2]:.3f}")
+
+    def _on_map(self, msg: OccupancyGridMsg) -> None:
+        """A map from ``map_server``: its walls become the segment map (as ``map build
+        --grid``); the robot goes on from its estimate in the new map."""
+        from fusion.mapping.segments import extract_segments
+        from fusion.ros2.messages import grid_from_message
+
+        if self.settings.first_map_only and self.map is not None:
+            return
+        started = time.perf_counter()
+        try:
+            grid = grid_from_message(msg, self.settings.houghloc__max_map_cells)
+            segment_map = extract_segments(grid, MIN_WALL_LENGTH, name=self.settings.map_topic)
+        except ValueError as err:
+            self.get_logger().error(f"map on {self.settings.map_topic} not used: {err}")
+            return
+        self.map, self.map_source = segment_map, f"topic {self.settings.map_topic}"
+        self.get_logger().info(
+            f"map from {self.settings.map_topic}: {msg.info.width} × {msg.info.height} cells, "
+            f"{len(segment_map)} walls, built in {time.perf_counter() - started:.2f} s")
+        if self.localizer is not None:
+            self._restart(*self._current(), "new map")
+
+    def _on_reinitialize(self, request: Any, response: Any) -> Any:
+        """nav2's ``reinitialize_global_localization``: forget the pose, search the whole map."""
+        self._restart(None, None, "global localization requested")
+        return response
+
+    def _on_nomotion(self, request: Any, response: Any) -> Any:
+        """nav2's ``request_nomotion_update`` makes AMCL use the next scan though the robot did
+        not move; houghloc uses every scan already, so there is nothing to force."""
+        return response
+
+    def _restart(self, pose: NDArray[np.float64] | None, cov: NDArray[np.float64] | None,
+                 reason: str) -> None:
+        self._start_pose, self._start_cov, self._start_reason = pose, cov, reason
+        self.localizer, self._last = None, None  # the next scan starts a new one
+        if self.outputs is not None:
+            self.outputs.state(f"lost ({reason})" if pose is None else f"tracking ({reason})")
 
     # --------------------------------------------------------------------------- localizing
     def _release_waiting(self) -> None:
         """Scans that waited ``odom_wait`` for odometry go on without it."""
         now = time.monotonic()
-        while self._pending and now - self._pending[0].arrived >= self.odom_wait:
-            self._localize(self._pending.popleft().scan)
+        while self._pending and now - self._pending[0].arrived >= \
+                self.settings.houghloc__odom_wait:
+            self._localize(self._pending.popleft())
 
     def _release(self, odometry_time: float) -> None:
         """Scans the odometry has reached go through the localizer, oldest first."""
         while self._pending and self._pending[0].scan.t <= odometry_time:
-            self._localize(self._pending.popleft().scan)
+            self._localize(self._pending.popleft())
 
-    def _localize(self, scan: Scan) -> None:
+    def _localize(self, pending: _Pending) -> None:
+        if self.map is None:
+            self._warn_once("no-map", f"no map yet: scans wait for one on "
+                            f"{self.settings.map_topic} (or give --map)")
+            return
+        if self.localizer is not None and pending.sensor not in self.localizer.config.sensors:
+            # a laser heard for the first time: go on from the estimate with its mount known
+            self._restart(*self._current(), f"laser {pending.sensor} added")
         if self.localizer is None:
-            self.localizer = self._start(scan.t)
+            self.localizer = self._start(pending.scan.t)
+        scan = pending.scan
         try:
-            estimate = self.localizer.on_scan(scan.t, scan.ranges, scan.angles, self.sensor,
+            estimate = self.localizer.on_scan(scan.t, scan.ranges, scan.angles, pending.sensor,
                                               scan.max_range)
-        except ValueError as err:  # e.g. a scan no sensor could take
+        except (ValueError, KeyError) as err:  # e.g. a scan no sensor could take
             self.get_logger().warning(f"scan at {scan.t:.3f} dropped: {err}")
             return
         self.scans += 1
-        self._publish(estimate)
+        self._last = estimate
+        assert self.outputs is not None
+        self.outputs.estimate(estimate, self.localizer.manager, self._odometry_at(estimate.t))
 
     def _start(self, t: float) -> Localizer:
-        """A Localizer for the robot as it is now: the laser's mount from /tf_static when it
+        """A Localizer for the robot as it is now: each laser's mount from /tf_static when it
         is there, the pose given (or global localization), the odometry up to ``t``."""
-        config = self.config
-        mount = self._static.planar(self.base_frame, self._frame.lstrip("/"))
-        if mount is not None:
-            config = config.with_mount(self.sensor, mount)
-            self.get_logger().info("laser mount from /tf_static: x {:.3f} y {:.3f} θ {:.4f}"
-                                   .format(*mount))
+        config = self._with_lasers(self.config)
         if self._start_cov is not None:
             sigma_xy = math.sqrt(max(self._start_cov[0, 0], self._start_cov[1, 1], 1e-8))
             sigma_theta = math.degrees(math.sqrt(max(self._start_cov[2, 2], 1e-10)))
@@ -222,6 +367,7 @@ class LocalizerNode(Node):
             raw["filter"].update(initial_sigma_xy=min(sigma_xy, MAX_INITIAL_SIGMA_XY),
                                  initial_sigma_theta_deg=min(sigma_theta, 180.0))
             config = LocalizerConfig.from_dict(raw, "initialpose")
+        assert self.map is not None
         try:
             localizer = Localizer(self.map, config, self._start_pose, self.rerun)
         except ValueError as err:  # a pose outside the map: not where the robot can be
@@ -234,43 +380,49 @@ class LocalizerNode(Node):
             localizer.on_odometry(*before[-1])
         return localizer
 
-    # ------------------------------------------------------------------------------ outputs
-    def _publish(self, estimate: Estimate) -> None:
-        msg = PoseWithCovarianceStamped()
-        msg.header.frame_id = self.map_frame
-        set_stamp(msg.header.stamp, estimate.t)
-        set_planar_pose(msg.pose.pose, estimate.pose)
-        msg.pose.covariance = ros_covariance(estimate.cov)
-        self.pose_pub.publish(msg)
-        odom = self._odometry_at(estimate.t)
-        if self.tf_pub is not None and odom is not None:
-            tf = TransformStamped()
-            tf.header.frame_id, tf.child_frame_id = self.map_frame, self.odom_frame
-            set_stamp(tf.header.stamp, estimate.t + self.transform_tolerance)
-            set_planar_transform(tf.transform, map_to_odom(estimate.pose, odom))
-            self.tf_pub.publish(self._tf_message(transforms=[tf]))
-        assert self.localizer is not None
-        manager = self.localizer.manager
-        reason = manager.transitions[-1].reason if manager.transitions else ""
-        # the integrity output (fusion.integrity): what a navigation stack should trust
-        probability = estimate.localized_probability
-        self.localized_pub.publish(Float32(data=float(probability)))
-        localized = "localized" if is_localized(probability) else "not localized"
-        self._publish_state(f"{manager.state.value}, {localized} ({reason})" if reason
-                            else f"{manager.state.value}, {localized}")
+    def _with_lasers(self, config: LocalizerConfig) -> LocalizerConfig:
+        """The config with one sensor per laser heard so far, each at its /tf_static mount."""
+        laser = config.laser
+        assert laser is not None
+        raw = config.as_dict()
+        for sensor, frame in self._frames.items():
+            mount = self._static.planar(self.settings.base_frame_id, frame)
+            entry = raw["sensors"].setdefault(sensor, dict(raw["sensors"][laser]))
+            if mount is not None:
+                entry["mount"] = list(mount)
+                self.get_logger().info("{} mount from /tf_static ({}): x {:.3f} y {:.3f} "
+                                       "θ {:.4f}".format(sensor, frame, *mount))
+            elif sensor != laser:
+                self._warn_once(f"mount-{sensor}", f"{sensor} ({frame}) has no mount on "
+                                "/tf_static: the config's laser mount is used")
+        return LocalizerConfig.from_dict(raw, "lasers")
 
-    def _publish_state(self, text: str) -> None:
-        if text != self._state_text:
-            self._state_text = text
-            self.state_pub.publish(String(data=text))
+    def _current(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The last pose published and its covariance (the filter's, before any scan)."""
+        if self._last is not None:
+            return self._last.pose, self._last.cov
+        assert self.localizer is not None
+        return self.localizer.tracker.pose, self.localizer.tracker.cov
+
+    def _warn_once(self, key: str, text: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
+
+    def _save_pose(self) -> None:
+        if self.localizer is None or not self._active:
+            return
+        try:
+            save_pose(self.settings.saved_pose_filepath, *self._current(),
+                      self.settings.global_frame_id)
+        except OSError as err:
+            self._warn_once("save", f"pose not saved: {err}")
 
     def _odometry_at(self, t: float) -> NDArray[np.float64] | None:
         """The odometry pose at ``t``, interpolated between the readings around it (the last
         one when ``t`` is past it)."""
         if not self._odometry:
             return None
-        # the first reading at or after t (the readings are in time order); scans come
-        # shortly before the newest reading, so the search starts from the end
         readings = self._odometry
         k = len(readings)
         while k > 0 and readings[k - 1][0] >= t:
@@ -280,48 +432,17 @@ class LocalizerNode(Node):
         a, b = np.array(readings[k - 1]), np.array(readings[k])
         w = (t - a[0]) / (b[0] - a[0]) if b[0] > a[0] else 1.0
         pose = a[1:] + w * (b[1:] - a[1:])
-        pose[2] = a[3] + w * float(wrap_angle(b[3] - a[3]))
+        pose[2] = a[3] + w * math.remainder(b[3] - a[3], math.tau)
         return pose
 
 
-def run_node(segment_map: SegmentMap, config: LocalizerConfig,
-             initial_pose: NDArray[np.float64] | None, logger: Logger,
-             ros_args: list[str]) -> int:
-    """``houghloc ros2``: spin the node until Ctrl-C, SIGTERM (as ``ros2 launch`` and systemd
-    stop a node) or a shutdown; 0 when it ends cleanly."""
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
+def _packaged(name: str, kind: str) -> str:
+    """A parameter's map or config: a file, or a packaged one of that name."""
+    from pathlib import Path
 
-    # A signal only asks the loop below to stop. Raised as an exception (Ctrl-C's
-    # KeyboardInterrupt) it could land inside rclpy's own code, an executor half built, and
-    # leave a traceback; rclpy's own handlers would shut the context down under the node
-    # still being built. So rclpy installs none, and the context ends in the `finally`. A
-    # signal the parent set to be ignored stays ignored (a shell without job control starts
-    # its background jobs with SIGINT ignored, so that Ctrl-C at the prompt spares them).
-    stop = threading.Event()
-    previous = {signum: signal.signal(signum, lambda *_: stop.set())
-                for signum in (signal.SIGINT, signal.SIGTERM)
-                if signal.getsignal(signum) is not signal.SIG_IGN}
-    node: LocalizerNode | None = None
-    executor: SingleThreadedExecutor | None = None
-    try:
-        rclpy.init(args=["houghloc", *ros_args], signal_handler_options=SignalHandlerOptions.NO)
-        node = LocalizerNode(segment_map, config, initial_pose, logger)
-        executor = SingleThreadedExecutor(context=node.context)
-        executor.add_node(node)
-        while not stop.is_set():
-            executor.spin_once(timeout_sec=STOP_CHECK_SECONDS)
-    except ExternalShutdownException:
-        pass
-    finally:
-        if executor is not None:
-            executor.shutdown()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        # printed, not logged: the ROS context (and /rosout) is shut down by now
-        scans, dropped = (node.scans, node.dropped_scans) if node is not None else (0, 0)
-        print(f"houghloc: {scans} scans localized, {dropped} dropped", file=sys.stderr)
-    return 0
+    from fusion.resources import configs_dir, find, maps_dir
+
+    found = find(Path(name), maps_dir() if kind == "map" else configs_dir())
+    if not found.exists():
+        raise ValueError(f"houghloc.{kind} {name}: file not found")
+    return str(found)
