@@ -302,6 +302,35 @@ def test_amcls_integrity_is_the_spread_of_its_particles():
     assert len(filt.particles()) == 2000  # pf_init draws max_particles
 
 
+def test_nav2_amcl_repeats_with_its_seed():
+    """The same seed gives the same particles after an initial pose and updates, whatever other
+    filters the process made before (nav2's Gaussian reseeds from a process-wide count); another
+    seed gives others."""
+    _need_nav2_amcl()
+    from fusion.bench.methods import AMCL_TUNED
+    from fusion.bench.nav2_amcl import Nav2Amcl
+
+    walls = np.zeros((120, 120), dtype=np.int8)
+    walls[[0, -1], :] = walls[:, [0, -1]] = walls[40:50, 70:80] = 100
+    ranges = np.random.default_rng(0).uniform(1.0, 5.0, 90)
+    bearings = np.linspace(-np.pi / 2, np.pi / 2, 90)
+
+    def particles(seed: int) -> np.ndarray:
+        filt = Nav2Amcl(min_particles=500, max_particles=2000, alpha_slow=0.0, alpha_fast=0.0,
+                        alpha=(0.05,) * 5, seed=seed)
+        filt.set_map(walls, 0.05, (0.0, 0.0), "likelihood_field", AMCL_TUNED, 90)
+        filt.set_laser_pose(np.zeros(3))
+        filt.init_pose(np.array([3.0, 3.0, 0.0]), np.diag([0.25, 0.25, 0.07]))
+        for k in range(5):
+            filt.update(np.array([0.1 * k, 0.0, 0.02 * k]), ranges, bearings, 20.0)
+        return filt.particles()
+
+    first = particles(1)
+    np.testing.assert_array_equal(first, particles(1))
+    other = particles(2)
+    assert other.shape != first.shape or not np.array_equal(other, first)
+
+
 def test_nav2_amcl_finds_the_office_pose_with_its_likelihood_field(office_run):
     """nav2's own filter through the binding, run as the benchmark runs it, on the simulated
     office's map drawn as a grid: started 0.4 m and 10° off with RViz's spread, its heaviest

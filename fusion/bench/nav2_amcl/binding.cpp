@@ -14,6 +14,7 @@
 #include "nav2_amcl/motion_model/differential_motion_model.hpp"
 #include "nav2_amcl/motion_model/omni_motion_model.hpp"
 #include "nav2_amcl/pf/pf.hpp"
+#include "nav2_amcl/pf/pf_pdf.hpp"
 #include "nav2_amcl/sensors/laser/laser.hpp"
 
 namespace {
@@ -28,6 +29,7 @@ struct Filter {
   bool has_odom = false;
   int resample_count = 0;
   int resample_interval = 1;
+  long seed = 0;
 
   ~Filter() {
     laser.reset();
@@ -50,6 +52,11 @@ pf_vector_t uniform_free_pose(void * data) {
   return p;
 }
 
+// A sample of the Gaussian: what pf_init draws each particle from.
+pf_vector_t gaussian_pose(void * pdf) {
+  return pf_pdf_gaussian_sample(static_cast<pf_pdf_gaussian_t *>(pdf));
+}
+
 }  // namespace
 
 extern "C" {
@@ -61,6 +68,7 @@ void * hl_amcl_new(int min_particles, int max_particles, double alpha_slow, doub
   f->pf = pf_alloc(min_particles, max_particles, alpha_slow, alpha_fast, uniform_free_pose);
   f->pf->pop_err = pf_err;
   f->pf->pop_z = pf_z;
+  f->seed = seed;
   srand48(seed);  // pf_alloc seeded from the clock; a benchmark repeats
   if (omni) {
     f->motion = std::make_unique<nav2_amcl::OmniMotionModel>();
@@ -126,7 +134,12 @@ int hl_amcl_init_pose(void * handle, const double * mean, const double * cov) {
     m.v[i] = mean[i];
     for (int j = 0; j < 3; j++) {c.m[i][j] = cov[3 * i + j];}
   }
-  pf_init(f->pf, m, c);
+  // pf_init's samples, drawn after the seed: allocating the Gaussian reseeds drand48 from a
+  // count of every Gaussian the process made, which would make a run depend on the ones before
+  pf_pdf_gaussian_t * pdf = pf_pdf_gaussian_alloc(m, c);
+  srand48(f->seed);
+  pf_init_model(f->pf, gaussian_pose, pdf);
+  pf_pdf_gaussian_free(pdf);
   f->has_odom = false;
   return 0;
 }
@@ -135,6 +148,7 @@ int hl_amcl_init_pose(void * handle, const double * mean, const double * cov) {
 int hl_amcl_init_global(void * handle) {
   auto * f = static_cast<Filter *>(handle);
   if (f->map == nullptr || f->free_cells.empty()) {return 1;}
+  srand48(f->seed);
   pf_init_model(f->pf, uniform_free_pose, f);
   f->has_odom = false;
   return 0;
