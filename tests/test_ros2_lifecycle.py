@@ -53,7 +53,9 @@ from fusion.config import LocalizerConfig
 from fusion.ros2.messages import (
     grid_from_message,
     planar_pose,
+    ros_covariance,
     set_grid,
+    set_planar_pose,
     set_stamp,
     stamp_seconds,
 )
@@ -265,6 +267,11 @@ def test_started_by_the_lifecycle_protocol_with_amcls_parameters(office):
         assert h.transition("amcl", Transition.TRANSITION_CLEANUP) == \
             State.PRIMARY_STATE_UNCONFIGURED
         assert h.node.localizer is None and h.node.outputs is None
+        assert h.transition("amcl", Transition.TRANSITION_CONFIGURE) == \
+            State.PRIMARY_STATE_INACTIVE  # configured again after a cleanup, as nav2 may
+        assert h.transition("amcl", Transition.TRANSITION_INACTIVE_SHUTDOWN) == \
+            State.PRIMARY_STATE_FINALIZED
+        assert h.node.outputs is None
     finally:
         h.close()
 
@@ -293,6 +300,17 @@ def test_the_map_comes_from_the_map_topic_and_services_answer(office):
         h.wait(lambda: "lost (global localization requested)" in h.states, "the new state")
         h.stream(run, ranges, range(50, 52))
         assert h.node.localizer is not None and h.node.localizer.initial_pose is None
+        if tf2_msgs_available("nav2_msgs.srv"):  # built with tf2_msgs (make ros2)
+            from nav2_msgs.srv import SetInitialPose
+
+            request = SetInitialPose.Request()
+            request.pose.header.frame_id = "map"
+            set_planar_pose(request.pose.pose.pose, run.scan_truth[52])
+            request.pose.pose.covariance = ros_covariance(np.diag([0.01, 0.01, 0.001]))
+            h.call(SetInitialPose, "set_initial_pose", request)
+            h.wait(lambda: "tracking (initial pose received)" in h.states, "the set pose")
+            h.stream(run, ranges, range(52, 56))
+            np.testing.assert_allclose(h.node.localizer.initial_pose, run.scan_truth[52])
     finally:
         h.close()
 

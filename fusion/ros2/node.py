@@ -13,7 +13,8 @@ managed (lifecycle) node that nav2's lifecycle manager starts in place of AMCL.
     houghloc/localized (Float32: the probability that the pose is within 0.3 m and 5° of the
     truth, fusion.integrity), houghloc/state (String), /diagnostics (DiagnosticArray, 1 Hz)
 
-    services: reinitialize_global_localization, request_nomotion_update (std_srvs/Empty)
+    services: reinitialize_global_localization, request_nomotion_update (std_srvs/Empty),
+    set_initial_pose (nav2_msgs/SetInitialPose, where nav2_msgs is installed or built)
 
 Lifecycle, as nav2's AMCL: *configure* reads the parameters (:mod:`fusion.ros2.settings`), loads
 the map and config and creates the publishers, subscriptions and services; *activate* chooses
@@ -170,6 +171,11 @@ class LocalizerNode(LifecycleNode):
         made.append(self.create_service(Empty, "reinitialize_global_localization",
                                         self._on_reinitialize))
         made.append(self.create_service(Empty, "request_nomotion_update", self._on_nomotion))
+        if tf2_msgs_available("nav2_msgs.srv"):
+            from nav2_msgs.srv import SetInitialPose
+
+            made.append(self.create_service(SetInitialPose, "set_initial_pose",
+                                            self._on_set_initial_pose))
         made.append(self.create_timer(0.05, self._release_waiting))
         if s.saved_pose_filepath:
             made.append(self.create_timer(s.houghloc__save_pose_period, self._save_pose))
@@ -270,6 +276,11 @@ class LocalizerNode(LifecycleNode):
             if not self._static.add(tf):
                 self.get_logger().warning(f"/tf_static {tf.header.frame_id} -> "
                                           f"{tf.child_frame_id} is no rigid motion: ignored")
+
+    def _on_set_initial_pose(self, request: Any, response: Any) -> Any:
+        """nav2's ``set_initial_pose`` service: as a message on ``initialpose``."""
+        self._on_initial_pose(request.pose)
+        return response
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
         """Start again from the pose RViz's "2D Pose Estimate" gives, with its covariance."""

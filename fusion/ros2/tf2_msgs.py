@@ -1,15 +1,18 @@
-"""``tf2_msgs/msg/TFMessage`` in a virtual environment whose ROS 2 comes from PyPI.
+"""``tf2_msgs/msg/TFMessage`` (and ``nav2_msgs/srv/SetInitialPose``) in a virtual environment
+whose ROS 2 comes from PyPI.
 
-The node publishes ``map → odom`` on ``/tf`` as AMCL does, which takes ``tf2_msgs``. A robot's ROS 2
-install has it; the PyPI wheels of ROS 2 Kilted (the ``ros2`` extra) do not. This module builds
-it the way ROS builds any message package (``rosidl_generate_interfaces`` with the wheels' own
-generators, CMake and the C compiler) and installs it into the running environment::
+The node publishes ``map → odom`` on ``/tf`` as AMCL does, which takes ``tf2_msgs``, and offers
+AMCL's ``set_initial_pose`` service, which takes ``nav2_msgs``. A robot's ROS 2 and nav2 install
+has both; the PyPI wheels of ROS 2 Kilted (the ``ros2`` extra) do not. This module builds them
+the way ROS builds any message package (``rosidl_generate_interfaces`` with the wheels' own
+generators, CMake and the C compiler) and installs them into the running environment::
 
     python -m fusion.ros2.tf2_msgs
 
-The message is ROS 2's own definition, so its type hash, and every subscriber of ``/tf``, agree.
-Only ``TFMessage`` is built: the package's other interfaces (``TF2Error``, ``FrameGraph``,
-``LookupTransform``) are tf2's services and actions, which the node does not use.
+The interfaces are ROS 2's and nav2's own definitions, so their type hashes, and every peer's,
+agree. Only what the node uses is built: ``TFMessage`` (not tf2's services and actions), and
+``SetInitialPose`` (not nav2's other interfaces); a ``nav2_msgs`` already importable (a nav2
+install) is left alone.
 
 The wheels' exported CMake targets name the include folders of the machine that built them
 (``/opt/python/cp3XX-cp3XX/...``); those paths are pointed at this environment's Python and NumPy
@@ -26,10 +29,28 @@ import subprocess
 import sys
 import sysconfig
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 TF_MESSAGE = "geometry_msgs/TransformStamped[] transforms\n"
 """tf2_msgs/msg/TFMessage.msg, as in ROS 2 (geometry2)."""
+SET_INITIAL_POSE = "geometry_msgs/PoseWithCovarianceStamped pose\n---\n"
+"""nav2_msgs/srv/SetInitialPose.srv, as in nav2."""
+
+
+@dataclass(frozen=True)
+class Interfaces:
+    """One interface package to build: its name, version, licence and files (path → text)."""
+
+    name: str
+    version: str
+    license: str
+    files: dict[str, str]
+
+
+PACKAGES = (Interfaces("tf2_msgs", "0.43.0", "BSD-3-Clause", {"msg/TFMessage.msg": TF_MESSAGE}),
+            Interfaces("nav2_msgs", "1.4.0", "Apache-2.0",
+                       {"srv/SetInitialPose.srv": SET_INITIAL_POSE}))
 
 BUILD_REQUIREMENTS = [
     "ros-kilted-rosidl-default-generators==1.7.*",
@@ -44,11 +65,11 @@ BUILD_REQUIREMENTS = [
 
 PACKAGE_XML = """<?xml version="1.0"?>
 <package format="3">
-  <name>tf2_msgs</name>
-  <version>0.43.0</version>
-  <description>tf2_msgs/msg/TFMessage, built for houghloc's ROS 2 node</description>
+  <name>{name}</name>
+  <version>{version}</version>
+  <description>{interfaces} of {name}, built for houghloc's ROS 2 node</description>
   <maintainer email="houghloc@example.org">houghloc</maintainer>
-  <license>BSD-3-Clause</license>
+  <license>{license}</license>
   <buildtool_depend>ament_cmake</buildtool_depend>
   <buildtool_depend>rosidl_default_generators</buildtool_depend>
   <depend>geometry_msgs</depend>
@@ -59,11 +80,11 @@ PACKAGE_XML = """<?xml version="1.0"?>
 """
 
 CMAKE_LISTS = """cmake_minimum_required(VERSION 3.20)
-project(tf2_msgs)
+project({name})
 find_package(ament_cmake REQUIRED)
 find_package(rosidl_default_generators REQUIRED)
 find_package(geometry_msgs REQUIRED)
-rosidl_generate_interfaces(${PROJECT_NAME} "msg/TFMessage.msg" DEPENDENCIES geometry_msgs)
+rosidl_generate_interfaces(${{PROJECT_NAME}} {interfaces} DEPENDENCIES geometry_msgs)
 ament_export_dependencies(rosidl_default_runtime)
 ament_package()
 """
@@ -76,28 +97,34 @@ class BuildError(RuntimeError):
     """The message could not be built here; the text says what is missing."""
 
 
-def available() -> bool:
-    """Whether ``tf2_msgs.msg.TFMessage`` can be imported in this environment."""
+def available(module: str = "tf2_msgs.msg") -> bool:
+    """Whether ``module`` (``tf2_msgs.msg``, ``nav2_msgs.srv``) can be imported here."""
     try:
-        return importlib.util.find_spec("tf2_msgs.msg") is not None
+        return importlib.util.find_spec(module) is not None
     except ModuleNotFoundError:
         return False
 
 
-def build(prefix: Path | None = None, quiet: bool = True) -> None:
-    """Build ``tf2_msgs`` and install it into ``prefix`` (default: this environment)."""
+def build(package: Interfaces, prefix: Path | None = None, quiet: bool = True) -> None:
+    """Build ``package`` and install it into ``prefix`` (default: this environment)."""
     prefix = Path(prefix or sys.prefix)
     for tool in ("cmake", "cc", "make"):
         if shutil.which(tool) is None:
-            raise BuildError(f"building tf2_msgs needs {tool} (install CMake and a C compiler)")
+            raise BuildError(f"building {package.name} needs {tool} (install CMake and a C "
+                             "compiler)")
     _run([sys.executable, "-m", "pip", "install", "--quiet", *BUILD_REQUIREMENTS], quiet)
     _use_this_environment(prefix)
-    with tempfile.TemporaryDirectory(prefix="tf2_msgs-") as tmp:
-        source, build_dir = Path(tmp) / "tf2_msgs", Path(tmp) / "build"
-        (source / "msg").mkdir(parents=True)
-        (source / "msg" / "TFMessage.msg").write_text(TF_MESSAGE)
-        (source / "package.xml").write_text(PACKAGE_XML)
-        (source / "CMakeLists.txt").write_text(CMAKE_LISTS)
+    with tempfile.TemporaryDirectory(prefix=f"{package.name}-") as tmp:
+        source, build_dir = Path(tmp) / package.name, Path(tmp) / "build"
+        for name, text in package.files.items():
+            (source / name).parent.mkdir(parents=True, exist_ok=True)
+            (source / name).write_text(text)
+        quoted = " ".join(f'"{name}"' for name in package.files)
+        (source / "package.xml").write_text(PACKAGE_XML.format(
+            name=package.name, version=package.version, license=package.license,
+            interfaces=", ".join(package.files)))
+        (source / "CMakeLists.txt").write_text(CMAKE_LISTS.format(name=package.name,
+                                                                  interfaces=quoted))
         build_dir.mkdir()
         env = {"PATH": f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}"}
         _run(["cmake", str(source), f"-DCMAKE_INSTALL_PREFIX={prefix}",
@@ -131,22 +158,25 @@ def _run(command: list[str], quiet: bool, cwd: Path | None = None,
 
 
 def main() -> int:
-    if available():
-        print("tf2_msgs is already importable here: nothing to build")
-        return 0
-    try:
-        build()
-    except BuildError as err:
-        print(f"houghloc: error: {err}", file=sys.stderr)
-        return 1
-    # a new interpreter: this one cached the failed look-up
-    check = subprocess.run([sys.executable, "-c", "from tf2_msgs.msg import TFMessage"],
-                           capture_output=True, text=True, check=False)
-    if check.returncode != 0:
-        print(f"houghloc: error: tf2_msgs was built but does not import:\n{check.stderr}",
-              file=sys.stderr)
-        return 1
-    print(f"tf2_msgs (TFMessage) built and installed into {sys.prefix}")
+    for package in PACKAGES:
+        module = f"{package.name}.{next(iter(package.files)).split('/')[0]}"
+        if available(module):
+            print(f"{package.name} is already importable here: nothing to build")
+            continue
+        try:
+            build(package)
+        except BuildError as err:
+            print(f"houghloc: error: {err}", file=sys.stderr)
+            return 1
+        # a new interpreter: this one cached the failed look-up
+        check = subprocess.run([sys.executable, "-c", f"import {module}"],
+                               capture_output=True, text=True, check=False)
+        if check.returncode != 0:
+            print(f"houghloc: error: {package.name} was built but does not import:\n"
+                  f"{check.stderr}", file=sys.stderr)
+            return 1
+        print(f"{package.name} ({', '.join(package.files)}) built and installed into "
+              f"{sys.prefix}")
     return 0
 
 
