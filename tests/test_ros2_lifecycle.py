@@ -338,14 +338,29 @@ def test_two_lasers_each_at_its_mount_from_tf_static(office):
 
 
 def test_a_restart_after_kill_9_starts_at_the_saved_pose(office, tmp_path):
-    """``houghloc ros2`` saves its pose; killed with SIGKILL and started again without a pose,
-    it starts at the saved one and tracks; a saved pose too old is not used."""
+    """``houghloc ros2``, run as AMCL with a nav2 parameters file, saves its pose; killed with
+    SIGKILL and started again without a pose, it starts at the saved one and tracks; a saved
+    pose too old is not used."""
     run, ranges, _ = office
     saved = tmp_path / "pose.json"
     domain = 60 + os.getpid() % 40
+    # a nav2 bringup's parameters file, the node under AMCL's name
+    params = tmp_path / "nav2_params.yaml"
+    params.write_text(f"""amcl:
+  ros__parameters:
+    base_frame_id: base_footprint
+    global_frame_id: map
+    odom_frame_id: odom
+    scan_topic: scan
+    laser_model_type: likelihood_field
+    max_particles: 2000
+    update_min_d: 0.25
+    saved_pose_filepath: {saved}
+    houghloc:
+      save_pose_period: 0.2
+""")
     command = [sys.executable, "-m", "fusion", "ros2", "--map", str(run.map_path), "--config",
-               "office-laser", "--ros-args", "-p", f"saved_pose_filepath:={saved}",
-               "-p", "houghloc.save_pose_period:=0.2"]
+               "office-laser", "--ros-args", "--params-file", str(params), "-r", "__node:=amcl"]
     env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
     first = subprocess.Popen([*command[:6], "--initial-pose", *map(str, run.scan_truth[0]),
                               *command[6:]], env=env, stdout=subprocess.DEVNULL,
