@@ -264,6 +264,14 @@ def test_started_by_the_lifecycle_protocol_with_amcls_parameters(office):
         h.stream(run, ranges, range(60, 63), expect=False)
         time.sleep(0.5)
         assert len(h.poses) == before
+        assert h.states[-1] == "inactive"
+        kept = h.node.localizer  # activated again: AMCL goes on from its last pose
+        assert h.transition("amcl", Transition.TRANSITION_ACTIVATE) == State.PRIMARY_STATE_ACTIVE
+        h.wait(lambda: h.states[-1] == "tracking (resumed)", "the resumed state")
+        h.stream(run, ranges, range(63, 70))
+        assert h.node.localizer is kept and h.errors(run).max() <= POSITION_M
+        assert h.transition("amcl", Transition.TRANSITION_DEACTIVATE) == \
+            State.PRIMARY_STATE_INACTIVE
         assert h.transition("amcl", Transition.TRANSITION_CLEANUP) == \
             State.PRIMARY_STATE_UNCONFIGURED
         assert h.node.localizer is None and h.node.outputs is None
@@ -311,6 +319,32 @@ def test_the_map_comes_from_the_map_topic_and_services_answer(office):
             h.wait(lambda: "tracking (initial pose received)" in h.states, "the set pose")
             h.stream(run, ranges, range(52, 56))
             np.testing.assert_allclose(h.node.localizer.initial_pose, run.scan_truth[52])
+    finally:
+        h.close()
+
+
+def test_always_reset_initial_pose_starts_again_on_activation(office):
+    """With ``always_reset_initial_pose``, activating again starts from ``initial_pose.*``
+    rather than going on from the last pose, as AMCL does."""
+    run, ranges, _ = office
+    h = Client(lambda ctx: LocalizerNode(
+        run.map, LocalizerConfig.from_yaml("office-laser"), context=ctx,
+        parameter_overrides=_amcl_parameters(run.scan_truth[0],
+                                             always_reset_initial_pose=True)))
+    try:
+        h.send_mounts(EPOCH)
+        h.stream(run, ranges, range(0, 20))
+        first = h.node.localizer
+        assert h.transition("houghloc", Transition.TRANSITION_DEACTIVATE) == \
+            State.PRIMARY_STATE_INACTIVE
+        assert h.transition("houghloc", Transition.TRANSITION_ACTIVATE) == \
+            State.PRIMARY_STATE_ACTIVE
+        assert h.states[-1] == "tracking (initial pose from parameters)"
+        assert h.node.localizer is None  # the next scan starts one at the parameters' pose
+        h.odom_sent = -math.inf  # the odometry from the start again, as for a robot put back
+        h.stream(run, ranges, range(0, 5))
+        assert h.node.localizer is not first
+        np.testing.assert_allclose(h.node.localizer.initial_pose, run.scan_truth[0])
     finally:
         h.close()
 
