@@ -28,6 +28,11 @@ NAV2_SOURCES = [
     "src/sensors/laser/likelihood_field_model_prob.cpp",
 ]
 """nav2_amcl's filter, map and models; not the package's own wrapper (amcl.cpp)."""
+ZERO_UNINITIALIZED = "-ftrivial-auto-var-init=zero"
+"""nav2's map_cspace queues the obstacle cells with a priority it never sets (``CellData
+cell;``): whatever the stack held, so the likelihood field, and every run after it, depended on
+what the process ran before. Zero is the obstacles' own distance, the value meant; GCC ≥ 12 and
+Clang ≥ 8 take this flag, which changes no source."""
 
 
 def build(quiet: bool = True) -> Path:
@@ -49,7 +54,8 @@ def build(quiet: bool = True) -> Path:
             source = Path(name) if Path(name).is_absolute() else root / name
             obj = work / f"{i}.o"
             compiler = ["cc", "-std=gnu11"] if source.suffix == ".c" else ["c++", "-std=c++17"]
-            _run([*compiler, "-O2", "-fPIC", "-DHAVE_DRAND48", "-I", str(root / "include"),
+            _run([*compiler, "-O2", "-fPIC", ZERO_UNINITIALIZED, "-DHAVE_DRAND48", "-I",
+                  str(root / "include"),
                   "-c", str(source), "-o", str(obj)], quiet)
             objects.append(str(obj))
         LIBRARY.parent.mkdir(parents=True, exist_ok=True)
