@@ -168,11 +168,11 @@ def test_fhw_spin_after_a_stalled_odometry_is_followed() -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name, lost, ate", [("intel", 0.032, 0.15), ("fhw", 0.02, 0.12)])
+@pytest.mark.parametrize("name, lost, ate", [("intel", 0.042, 0.134), ("fhw", 0.02, 0.12)])
 def test_held_out_maps_are_not_left_for_look_alikes(name, lost, ate) -> None:
     """In the map of the other part of the run, which lacks rooms the robot passes through, the
-    robot is lost no more often than nav2's tuned AMCL is there, and no further (Intel 3.2 % of
-    the covered poses, 15 cm ATE; fhw 10 %, 17 cm, where the bound is tighter): a look-alike is
+    robot is lost no more often than nav2's tuned AMCL is there, and no further (Intel 4.2 % of
+    the covered poses, 13.4 cm ATE; fhw 14 %, 1.7 m, where the bound is tighter): a look-alike is
     weighed by what the robot would see through walls there, and scans that land where the map
     has nothing are no evidence against the belief. Measured: Intel 2.6 % of the covered poses,
     ATE 9.5 cm (1.3 %, 9.6 cm before the guess was polished on the points where the lines give
@@ -189,8 +189,8 @@ def test_held_out_maps_are_not_left_for_look_alikes(name, lost, ate) -> None:
 @pytest.mark.parametrize("name", ["aces", "freiburg-101", "intel"])
 def test_the_tuned_amcl_passes_its_sanity_gate(name) -> None:
     """nav2's AMCL with its tuned set, from the known start on the map of the same run, is lost
-    on at most 5 % of the scans of these logs (measured: ACES 2.5 %, Freiburg 101 1.4 %, Intel
-    2.9 %); on fhw, Freiburg 079 and seattle it is not (11.5, 83.7 and 6.6 %), and summary.md
+    on at most 5 % of the scans of these logs (measured: ACES 2.3 %, Freiburg 101 1.4 %, Intel
+    3.8 %); on fhw, Freiburg 079 and seattle it is not (15.4, 84.0 and 7.5 %), and summary.md
     marks its rows there suspect (fusion.bench.report.suspect)."""
     from fusion.bench.nav2_amcl import LIBRARY
     from fusion.bench.report import PEER_SANITY_LOST
