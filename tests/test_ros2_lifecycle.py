@@ -323,6 +323,28 @@ def test_the_map_comes_from_the_map_topic_and_services_answer(office):
         h.close()
 
 
+def test_a_new_map_on_the_topic_replaces_the_old_one(office):
+    """Without ``first_map_only`` a new map replaces the old: the walls are built again and the
+    robot goes on from its estimate in the new map."""
+    run, ranges, _ = office
+    h = Client(lambda ctx: LocalizerNode(
+        None, LocalizerConfig.from_yaml("office-laser"), context=ctx,
+        parameter_overrides=_amcl_parameters(run.scan_truth[0])))
+    try:
+        h.send_mounts(EPOCH)
+        h.map_pub.publish(_office_grid(run))
+        h.wait(lambda: h.node.map is not None, "the first map")
+        h.stream(run, ranges, range(0, 20))
+        first = h.node.map
+        h.map_pub.publish(_office_grid(run))
+        h.wait(lambda: h.node.map is not first, "the second map")
+        h.wait(lambda: "tracking (new map)" in h.states, "the restart in the new map")
+        h.stream(run, ranges, range(20, 40))
+        assert h.errors(run).max() <= POSITION_M
+    finally:
+        h.close()
+
+
 def test_always_reset_initial_pose_starts_again_on_activation(office):
     """With ``always_reset_initial_pose``, activating again starts from ``initial_pose.*``
     rather than going on from the last pose, as AMCL does."""
