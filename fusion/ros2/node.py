@@ -49,7 +49,9 @@ from fusion.config import LocalizerConfig
 from fusion.events import Scan
 from fusion.io.rosbag import StaticTree, odometry_event, scan_event
 from fusion.localizer import Estimate, Localizer
+from fusion.resources import find_config, find_map
 from fusion.ros2.messages import planar_covariance, planar_pose
+from fusion.ros2.odometry import OdometryBuffer
 from fusion.ros2.outputs import LATCHED, Outputs
 from fusion.ros2.saved_pose import load_pose, save_pose
 from fusion.ros2.settings import NodeSettings, declare, read
@@ -116,7 +118,7 @@ class LocalizerNode(LifecycleNode):
         self._start_cov: NDArray[np.float64] | None = None
         self._start_reason = "global localization"
         self._pending: deque[_Pending] = deque()
-        self._odometry: deque[tuple[float, float, float, float]] = deque(maxlen=ODOMETRY_KEPT)
+        self._odometry = OdometryBuffer(ODOMETRY_KEPT)
         self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
         self._static = StaticTree()
         self._frames: dict[str, str] = {}  # sensor name → the frame its scans come in
@@ -128,13 +130,13 @@ class LocalizerNode(LifecycleNode):
         s = self.settings = read(self)
         try:
             self.config = self._given_config or LocalizerConfig.from_yaml(
-                _packaged(s.houghloc__config, "config") if s.houghloc__config else None)
+                find_config(s.houghloc__config) if s.houghloc__config else None)
             if self.config.laser is None:
                 raise ValueError("the node needs a laser sensor in the config")
             if self._given_map is not None:
                 self.map, self.map_source = self._given_map, "--map"
             elif s.houghloc__map:
-                self.map = SegmentMap.from_yaml(_packaged(s.houghloc__map, "map"))
+                self.map = SegmentMap.from_yaml(find_map(s.houghloc__map))
                 self.map_source = s.houghloc__map
         except (OSError, ValueError) as err:
             self.get_logger().error(f"configure failed: {err}")
@@ -253,7 +255,7 @@ class LocalizerNode(LifecycleNode):
         except ValueError as err:
             self.get_logger().warning(f"odometry dropped: {err}")
             return
-        self._odometry.append((event.t, event.x, event.y, event.theta))
+        self._odometry.append(event.t, event.x, event.y, event.theta)
         if self.localizer is not None and self._active:
             self.localizer.on_odometry(event.t, event.x, event.y, event.theta)
         self._release(event.t)
@@ -269,7 +271,7 @@ class LocalizerNode(LifecycleNode):
             self._pending.popleft()
             self.dropped_scans += 1
         self._pending.append(_Pending(scan, sensor, time.monotonic()))
-        self._release(self._odometry[-1][0] if self._odometry else -math.inf)
+        self._release(self._odometry.newest_time)
 
     def _on_tf_static(self, msg: Any) -> None:
         for tf in msg.transforms:
@@ -365,7 +367,7 @@ class LocalizerNode(LifecycleNode):
         self.scans += 1
         self._last = estimate
         assert self.outputs is not None
-        self.outputs.estimate(estimate, self.localizer.manager, self._odometry_at(estimate.t))
+        self.outputs.estimate(estimate, self.localizer.manager, self._odometry.at(estimate.t))
 
     def _start(self, t: float) -> Localizer:
         """A Localizer for the robot as it is now: each laser's mount from /tf_static when it
@@ -386,9 +388,9 @@ class LocalizerNode(LifecycleNode):
             self._start_pose = self._start_cov = None
             localizer = Localizer(self.map, config.model_copy(update={"initial_pose": None}),
                                   None, self.rerun)
-        before = [o for o in self._odometry if o[0] <= t]
-        if before:  # the reading the pose is given at: the increments start there
-            localizer.on_odometry(*before[-1])
+        before = self._odometry.last_before(t)
+        if before is not None:  # the reading the pose is given at: the increments start there
+            localizer.on_odometry(*before)
         return localizer
 
     def _with_lasers(self, config: LocalizerConfig) -> LocalizerConfig:
@@ -428,32 +430,3 @@ class LocalizerNode(LifecycleNode):
                       self.settings.global_frame_id)
         except OSError as err:
             self._warn_once("save", f"pose not saved: {err}")
-
-    def _odometry_at(self, t: float) -> NDArray[np.float64] | None:
-        """The odometry pose at ``t``, interpolated between the readings around it (the last
-        one when ``t`` is past it)."""
-        if not self._odometry:
-            return None
-        readings = self._odometry
-        k = len(readings)
-        while k > 0 and readings[k - 1][0] >= t:
-            k -= 1
-        if k == 0 or k == len(readings):
-            return np.array(readings[min(k, len(readings) - 1)][1:])
-        a, b = np.array(readings[k - 1]), np.array(readings[k])
-        w = (t - a[0]) / (b[0] - a[0]) if b[0] > a[0] else 1.0
-        pose = a[1:] + w * (b[1:] - a[1:])
-        pose[2] = a[3] + w * math.remainder(b[3] - a[3], math.tau)
-        return pose
-
-
-def _packaged(name: str, kind: str) -> str:
-    """A parameter's map or config: a file, or a packaged one of that name."""
-    from pathlib import Path
-
-    from fusion.resources import configs_dir, find, maps_dir
-
-    found = find(Path(name), maps_dir() if kind == "map" else configs_dir())
-    if not found.exists():
-        raise ValueError(f"houghloc.{kind} {name}: file not found")
-    return str(found)
