@@ -80,12 +80,18 @@ def office():
     return run, ranges, rear
 
 
+def _own_domain() -> int:
+    """A DDS domain for this test process alone: the node's topics have AMCL's names, which
+    other test processes' nodes publish too."""
+    return 110 + os.getpid() % 100
+
+
 class Client:
     """A ROS 2 context with the node (or not) and a client node spinning in a thread."""
 
     def __init__(self, node_factory: Callable[[Any], Any] | None, domain: int | None = None):
         self.context = rclpy.Context()
-        rclpy.init(context=self.context, domain_id=domain)
+        rclpy.init(context=self.context, domain_id=_own_domain() if domain is None else domain)
         self.node = node_factory(self.context) if node_factory else None
         self.client = rclpy.create_node("nav2_like_client", context=self.context)
         self.got = threading.Condition()
@@ -399,7 +405,7 @@ def test_a_restart_after_kill_9_starts_at_the_saved_pose(office, tmp_path):
     pose too old is not used."""
     run, ranges, _ = office
     saved = tmp_path / "pose.json"
-    domain = 60 + os.getpid() % 40
+    domain = _own_domain()
     # a nav2 bringup's parameters file, the node under AMCL's name
     params = tmp_path / "nav2_params.yaml"
     params.write_text(f"""amcl:

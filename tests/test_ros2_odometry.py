@@ -23,14 +23,18 @@ def test_the_pose_between_readings_lies_between_them(poses, w):
     for k, (x, y, theta) in enumerate(poses):
         buffer.append(0.1 * k, x, y, theta)
     for k, pose in enumerate(poses):
-        np.testing.assert_allclose(buffer.at(0.1 * k), pose, atol=1e-9)
+        got = buffer.at(0.1 * k)
+        assert got is not None
+        np.testing.assert_allclose(got[:2], pose[:2], atol=1e-9)
+        assert abs(math.remainder(got[2] - pose[2], math.tau)) < 1e-9
+        assert -math.pi <= got[2] <= math.pi
     a, b = np.array(poses[0]), np.array(poses[1])
     mid = buffer.at(0.1 * w)
     assert mid is not None
     np.testing.assert_allclose(mid[:2], a[:2] + w * (b[:2] - a[:2]), atol=1e-9)
     turn = math.remainder(b[2] - a[2], math.tau)
     assert abs(math.remainder(mid[2] - a[2], math.tau) - w * turn) < 1e-9
-    np.testing.assert_allclose(buffer.at(-5.0), poses[0])
+    np.testing.assert_allclose(buffer.at(-5.0), poses[0])  # the readings as they came
     np.testing.assert_allclose(buffer.at(99.0), poses[-1])
     assert buffer.last_before(0.15) == (0.1, *poses[1])
     assert buffer.newest_time == 0.1 * (len(poses) - 1)
