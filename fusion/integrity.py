@@ -4,11 +4,13 @@ A pose is *right* when it is within :data:`LOCALIZED_POSITION` and :data:`LOCALI
 of the truth — the benchmark's bound for a lost pose, so "reported localized while lost" is one
 event, *confident-wrong*. The probability is the product of two factors:
 
-* **the mode** — is the filter's Gaussian around the right place at all? While tracking from a
-  given pose or a pose taken from the followed hypotheses, the filter's own evidence is all
-  there is: 1. While hypotheses are followed, the leader's weight (its posterior among them)
-  once a global match has proposed rivals to it; before that, and while collecting views with
-  no hypothesis or lost: 0 (``AmbiguityManager.mode_probability``).
+* **the mode** — is the filter's Gaussian around the right place at all? While tracking, 1 less
+  the share of the evidence that gives tracking up gathered since the last usable fix (the
+  scans' worth of points seen through the map's walls, out of ``through_wall_scans``): the
+  decision and the probability read the same evidence. While hypotheses are followed, the
+  leader's weight (its posterior among them) once a global match has proposed rivals to it;
+  before that, and while collecting views with no hypothesis or lost: 0
+  (``AmbiguityManager.mode_probability``).
 * **the spread** — the Gaussian mass ``P(‖e_xy‖ ≤ r) · P(|e_θ| ≤ h)`` of the filter's
   covariance, position and heading taken as independent (their correlation is small next to the
   bounds). A corridor whose position along it no fix observes has a wide σ along it, and this

@@ -215,11 +215,12 @@ class AmbiguityManager:
     @property
     def mode_probability(self) -> float:
         """The probability that the reported pose's filter is around the right place at all
-        (:mod:`fusion.integrity`): 1 while tracking, the leader's weight among the followed
+        (:mod:`fusion.integrity`): while tracking, 1 less the share of the evidence that gives
+        tracking up gathered since the last usable fix; the leader's weight among the followed
         hypotheses once a global match has proposed rivals, 0 before that, while collecting
         views with none, or lost."""
         if self.state is State.TRACKING:
-            return 1.0
+            return 1.0 - self.watch.evidence_against
         bank = self.relocalization.bank
         if bank is None or not len(bank) or not bank.contested:
             return 0.0  # no hypothesis, or no rival proposed yet: nothing to weigh it against

@@ -79,6 +79,9 @@ class TrackingWatch:
         self._line_spacing = closest_parallel_spacing(map)
         self._without_fix = 0  # scans without a usable fix since the last one ...
         self._seen_through = 0.0  # ... and the scans' worth of their points seen through walls
+        self.evidence_against = 0.0
+        """The share of the evidence that gives tracking up gathered since the last usable
+        fix, in [0, 1): what the integrity output holds against the belief while tracking."""
 
     def judge(self, guess: NDArray, fix: ScanCorrection, points: NDArray,
               kinds: tuple[str, ...], min_lines: int) -> Verdict:
@@ -142,12 +145,15 @@ class TrackingWatch:
                 self._seen_through += self.fit.seen_through(pose, points, kinds)
         if through_walls:
             assert self.config.through_wall_scans is not None
+            self.evidence_against = min(1.0, self._seen_through / self.config.through_wall_scans)
             if self._seen_through >= self.config.through_wall_scans:
                 return (f"{self._without_fix} scans without a usable fix saw "
                         f"{self._seen_through:.1f} scans' worth of points through the map's "
                         f"walls (last: {status})")
-        elif self._without_fix >= self.config.max_scans_without_fix:
-            return f"{self._without_fix} scans without a usable fix (last: {status})"
+        else:
+            self.evidence_against = min(1.0, self._without_fix / self.config.max_scans_without_fix)
+            if self._without_fix >= self.config.max_scans_without_fix:
+                return f"{self._without_fix} scans without a usable fix (last: {status})"
         return self._too_uncertain(cov, in_view)
 
     def _too_uncertain(self, cov: NDArray, in_view: tuple[NDArray, NDArray] | None
@@ -170,4 +176,4 @@ class TrackingWatch:
 
     def fix_found(self) -> None:
         """A usable fix, or a new pose: the evidence for giving tracking up starts again."""
-        self._without_fix, self._seen_through = 0, 0.0
+        self._without_fix, self._seen_through, self.evidence_against = 0, 0.0, 0.0
