@@ -3,7 +3,7 @@
 One process, the real middleware (ROS 2 Kilted's rclpy with Fast DDS, from PyPI): a client node
 publishes the run's ``/tf_static`` (the laser 20 cm ahead of the base), ``/initialpose``, and its
 odometry and scans in time order as fast as the node keeps up (each scan's pose is awaited before
-the next scan goes out), and receives ``houghloc/pose``, ``/tf`` and ``houghloc/state``.
+the next scan goes out), and receives ``amcl_pose``, ``/tf`` and ``houghloc/state``.
 
 Prints scans/s through the node and the latency from a scan's publication to its pose's arrival
 (median, 95th percentile, max), beside the same run replayed without ROS (``houghloc run``'s
@@ -281,7 +281,7 @@ def plot(run: SimRun, result: NodeRun, resets: dict[int, NDArray[np.float64]],
             label="simulator's truth")
     poses = np.array(result.poses)
     ax.plot(poses[:, 0], poses[:, 1], color="tab:blue", lw=1,
-            label="houghloc/pose, received over ROS 2")
+            label="amcl_pose, received over ROS 2")
     for k, pose in resets.items():
         ax.annotate("", xy=pose[:2] + 0.6 * np.array([np.cos(pose[2]), np.sin(pose[2])]),
                     xytext=pose[:2], arrowprops={"arrowstyle": "->", "color": "tab:red"})
