@@ -222,7 +222,7 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
         filt = _make_amcl(p, piece, sensor)
     except Nav2AmclUnavailable as error:
         raise MissingPeer(str(error)) from None
-    odometry_at = _OdometryAt(piece.events)
+    odometry = iter(_odometry_at_scans(piece.events))
     last_update_odom: NDArray[np.float64] | None = None
     at_update = np.zeros(3)
     probability = 0.0
@@ -231,7 +231,7 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
     for e in piece.events:
         if not isinstance(e, Scan):
             continue
-        odom = odometry_at(e.t)
+        odom = next(odometry)
         # nav2's test: the odometry-frame difference, per axis
         moved = None if last_update_odom is None else odom - last_update_odom
         if moved is None or (abs(moved[0]) > p["update_min_d"] or abs(moved[1]) > p["update_min_d"]
@@ -252,25 +252,19 @@ def _amcl(piece: Piece, config: LocalizerConfig, method: Method) -> Localized:
                      time.process_time() - cpu, probability=np.array(probabilities))
 
 
-class _OdometryAt:
-    """The odometry pose at a time, interpolated between the readings around it, as nav2's
-    AMCL looks up ``odom → base`` in tf at a scan's stamp (its message filter holds the scan
-    until tf has it); before the first reading, the odometry frame's origin."""
+def _odometry_at_scans(events: tuple[Any, ...]) -> NDArray[np.float64]:
+    """The odometry pose at each scan's stamp, interpolated between the readings around it, as
+    nav2's AMCL looks up ``odom → base`` in tf at a scan's stamp (its message filter holds the
+    scan until tf has it); with no reading at all, the odometry frame's origin."""
+    from fusion.sim.poses import interpolate_poses
 
-    def __init__(self, events: tuple[Any, ...]) -> None:
-        readings = [(e.t, e.x, e.y, e.theta) for e in events
-                    if isinstance(e, Odometry) and math.isfinite(e.x + e.y + e.theta)]
-        r = np.array(readings, dtype=float).reshape(-1, 4)
-        self.t = r[:, 0]
-        self.xy = r[:, 1:3]
-        self.theta = np.unwrap(r[:, 3])
-
-    def __call__(self, t: float) -> NDArray[np.float64]:
-        if len(self.t) == 0:
-            return np.zeros(3)
-        x = np.interp(t, self.t, self.xy[:, 0])
-        y = np.interp(t, self.t, self.xy[:, 1])
-        return np.array((x, y, math.remainder(float(np.interp(t, self.t, self.theta)), math.tau)))
+    scans = np.array([e.t for e in events if isinstance(e, Scan)], dtype=float)
+    readings = np.array([(e.t, e.x, e.y, e.theta) for e in events
+                         if isinstance(e, Odometry) and math.isfinite(e.x + e.y + e.theta)],
+                        dtype=float).reshape(-1, 4)
+    if len(readings) == 0:
+        return np.zeros((len(scans), 3))
+    return interpolate_poses(scans, readings[:, 0], readings[:, 1:])
 
 
 def _make_amcl(p: dict[str, Any], piece: Piece, sensor: SensorConfig) -> Any:
