@@ -316,7 +316,6 @@ def time_map_topic(names: tuple[str, ...] = ("aces", "intel", "fr079")) -> dict[
     from fusion.mapping import OccupancyGrid
     from fusion.mapping.segments import extract_segments
     from fusion.ros2.messages import grid_from_message, set_grid
-    from fusion.ros2.node import MIN_WALL_LENGTH
 
     spec = load_spec(Path(__file__).with_name("real.yaml"))
     times = {}
@@ -330,7 +329,7 @@ def time_map_topic(names: tuple[str, ...] = ("aces", "intel", "fr079")) -> dict[
         msg = set_grid(GridMessage(), OccupancyGrid.from_masks(occupied, free, grid.resolution,
                                                                grid.origin))
         started = clock.perf_counter()
-        segments = extract_segments(grid_from_message(msg, GRID_CELLS**2), MIN_WALL_LENGTH)
+        segments = extract_segments(grid_from_message(msg, GRID_CELLS**2))
         times[run.name] = clock.perf_counter() - started
         peer = _nav2_field_seconds(msg)
         ratio = f"{times[run.name] / peer:.2f}× nav2 AMCL's likelihood field ({peer:.2f} s)" \

@@ -67,8 +67,6 @@ PENDING_SCANS = 10
 """Scans held for odometry at most; beyond, the oldest is dropped (the node is behind)."""
 ODOMETRY_KEPT = 1000
 """Odometry readings kept to place map → odom at a scan's time: 10 s at 100 Hz."""
-MIN_WALL_LENGTH = 0.5
-"""m: the shortest wall kept from a map topic's grid (``map build``'s default)."""
 
 
 @dataclass
@@ -188,7 +186,11 @@ class LocalizerNode(LifecycleNode):
             self._choose_start()
         self._active = True
         assert self.outputs is not None
-        self.outputs.activate(self._start_reason if self.localizer is None else "resumed")
+        if self.localizer is not None:
+            self.outputs.state("tracking (resumed)")
+        else:
+            lost = self._start_pose is None
+            self.outputs.state(f"{'lost' if lost else 'tracking'} ({self._start_reason})")
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -306,7 +308,7 @@ class LocalizerNode(LifecycleNode):
         started = time.perf_counter()
         try:
             grid = grid_from_message(msg, self.settings.houghloc__max_map_cells)
-            segment_map = extract_segments(grid, MIN_WALL_LENGTH, name=self.settings.map_topic)
+            segment_map = extract_segments(grid, name=self.settings.map_topic)  # map build's
         except ValueError as err:
             self.get_logger().error(f"map on {self.settings.map_topic} not used: {err}")
             return

@@ -63,10 +63,6 @@ class Outputs:
                 self.node.destroy_publisher(plain)
         self.node.destroy_timer(self.timer)
 
-    def activate(self, reason: str) -> None:
-        self.state(f"lost ({reason})" if reason == "global localization"
-                   else f"tracking ({reason})")
-
     def state(self, text: str) -> None:
         if text != self._state_text:
             self._state_text = text
