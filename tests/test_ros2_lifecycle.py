@@ -166,6 +166,10 @@ class Client:
         node holds a scan until the odometry reaches it); with ``expect``, each scan waits for
         its pose (both lasers' with ``rear``)."""
         cfg = run.config.laser
+        if expect:  # a message sent before the node's subscription is matched is lost
+            publishers = [self.scan_pub, self.odom_pub] + ([self.rear_pub] if rear is not None
+                                                           else [])
+            self.wait_matched(publishers)
         for k in scans:
             t = float(run.scan_t[k])
             before = len(self.poses)
@@ -179,6 +183,16 @@ class Client:
             if expect:
                 n = 1 if rear is None else 2
                 self.wait(lambda b=before + n: len(self.poses) >= b, f"the poses of scan {k}")
+
+    @staticmethod
+    def wait_matched(publishers: list[Any], seconds: float = TIMEOUT) -> None:
+        """Until every publisher has a subscriber: DDS discovery is asynchronous."""
+        deadline = time.monotonic() + seconds
+        while any(p.get_subscription_count() == 0 for p in publishers):
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"no subscriber in {seconds} s on "
+                                   f"{[p.topic_name for p in publishers]}")
+            time.sleep(0.02)
 
     @staticmethod
     def _scan(run: Any, r: np.ndarray, t: float, frame: str, cfg: Any) -> LaserScan:

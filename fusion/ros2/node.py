@@ -247,7 +247,10 @@ class LocalizerNode(LifecycleNode):
                     f"saved pose not used: {saved.age():.0f} s old in frame {saved.frame!r} "
                     f"(houghloc.saved_pose_max_age {s.houghloc__saved_pose_max_age:g} s)")
                 return
-            self._start_pose, self._start_cov = saved.pose, saved.cov
+            # the robot may have moved while no node ran: the saved pose is a prior no better
+            # than an initial pose given, so its covariance has a given pose's added to it
+            self._start_pose = saved.pose
+            self._start_cov = saved.cov + np.asarray(self.config.filter.initial_cov)
             self._start_reason = f"saved pose, {saved.age():.0f} s old"
 
     # ------------------------------------------------------------------------------ inputs
