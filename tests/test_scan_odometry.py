@@ -286,10 +286,10 @@ def dead_reckoned(run, scan_odometry: bool):
 @settings(max_examples=30, deadline=None)
 @given(true_scale=st.floats(0.9, 1.1), seed=st.integers(0, 10_000))
 def test_the_wheel_scale_filter_finds_the_true_scale_and_ignores_a_slip(true_scale, seed):
-    """Increments of 5-15 cm measured with 1 cm noise: after 200 (20 m) the estimate is within
-    2.5 % of the truth (its σ is then about 0.8 %, the prior's 10 %; about one in a hundred
-    honest increments falls beyond the 0.99 gate); one increment the wheels over-report
-    threefold (a slip) is gated out."""
+    """Increments of 5-15 cm measured with 1 cm noise: after 200 (20 m) the estimate's σ is
+    below 1 % (the prior's 10 %) and the truth within 5 σ of it (about one in a hundred honest
+    increments falls beyond the 0.99 gate); one increment the wheels over-report threefold (a
+    slip) is gated out."""
     rng = np.random.default_rng(seed)
     scale = WheelScale(prior_sigma=0.1, drift=0.001)
     taken = 0
@@ -297,7 +297,8 @@ def test_the_wheel_scale_filter_finds_the_true_scale_and_ignores_a_slip(true_sca
         w = rng.uniform(0.05, 0.15)
         taken += scale.update(w, true_scale * w + rng.normal(0.0, 0.01), 0.01**2)
     assert taken >= 190 and scale.updates == taken
-    assert abs(scale.value - true_scale) < 0.025
+    sigma = math.sqrt(scale.variance)
+    assert sigma < 0.01 and abs(scale.value - true_scale) < 5.0 * sigma
     before = scale.value
     assert not scale.update(0.3, 0.1 * true_scale, 0.01**2)
     assert scale.value == before
