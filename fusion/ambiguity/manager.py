@@ -47,6 +47,7 @@ from houghloc import HoughConfig, ScanCorrection, SegmentMap
 from houghloc.geometry import wrap_scalar
 from houghloc.global_match import prepare_map
 from houghloc.jit import one_blas_thread
+from houghloc.matching import gate_threshold
 
 __all__ = ["AmbiguityManager", "Decision", "Transition", "Verdict"]
 
@@ -146,18 +147,36 @@ class AmbiguityManager:
                 f"{math.degrees(wrap_scalar(shift[2])):.1f}°; {found.fit:.2f} of the points on "
                 f"walls (guess {guess_fit:.2f})"))
         cov = 0.5 * (found.cov + found.cov.T) + reinit_floor(self.config)
-        if found.along_kept and odom is not None and self.config.hypotheses is not None:
-            # The search explains a motion the odometry did not report, but the scan did not
-            # observe the position along the corridor in view: the pose found keeps the
-            # guess's, and the same motion may have carried the robot along it, to a
-            # look-alike place beyond the neighbourhood searched (a door further on). The pose
-            # is followed as tracking's belief while a global match of the next views proposes
-            # its rivals, and taken when the scans single it out (mode_probability is 0 until
-            # then).
+        if (self._unexplained(shift, guess_cov, hough) or found.along_kept) and (
+                odom is not None and self.config.hypotheses is not None):
+            # The search explains a motion the odometry did not report, and the neighbourhood
+            # searched does not bound it: the odometry's noise cannot explain the shift (the
+            # robot was carried, or turned by a push), or the scan did not observe the position
+            # along the corridor in view (the pose found keeps the guess's). The same motion
+            # may have carried the robot to a look-alike place beyond the neighbourhood (a
+            # door further on). The pose is followed as tracking's belief while a global match,
+            # of this view at once, proposes its rivals; it is taken when the scans single it
+            # out (mode_probability is 0 until then).
             self.belief.prior = (found.pose.copy(), cov.copy(), np.asarray(odom, float).copy())
             self._go(t, State.COLLECTING, "local re-search: the odometry missed a motion; a "
                      "global match contests the pose found")
+            self.relocalization.views.first_match_views = 1
         return Decision(found.pose, cov, found.result)
+
+    @staticmethod
+    def _unexplained(shift: NDArray, guess_cov: NDArray | None, hough: HoughConfig) -> bool:
+        """Is the local re-search's ``shift`` from the guess beyond what the guess's covariance
+        (the odometry's noise since the last fix) holds with the matcher's
+        ``gate_probability``: (Δx, Δy, Δθ) P⁻¹ (Δx, Δy, Δθ)ᵀ > χ²₃(p)? Without a covariance
+        nothing bounds it."""
+        if guess_cov is None:
+            return True
+        d = np.array((shift[0], shift[1], wrap_scalar(shift[2])))
+        try:
+            nis = float(d @ np.linalg.solve(guess_cov, d))
+        except np.linalg.LinAlgError:
+            return True
+        return nis > gate_threshold(hough.gate_probability, 3)
 
     def tracking_step(self, t: float, status: ScanStatus, cov: NDArray,
                       pose: NDArray | None = None, odom: NDArray | None = None,

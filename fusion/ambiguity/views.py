@@ -29,6 +29,8 @@ class Views:
     views: deque[View] = field(default_factory=deque)
     failures: int = 0
     since_attempt: int = 0
+    first_match_views: int | None = None
+    """views before the first match, when fewer than ``min_views`` (None: ``min_views``)"""
 
     def __len__(self) -> int:
         return len(self.views)
@@ -40,11 +42,13 @@ class Views:
     def clear(self) -> None:
         self.views.clear()
 
-    def restart(self) -> None:
-        """Tracking was given up: collect from scratch, with no failure counted."""
+    def restart(self, first_match_views: int | None = None) -> None:
+        """Tracking was given up: collect from scratch, with no failure counted; the first
+        match after ``first_match_views`` views when given."""
         self.views.clear()
         self.failures = 0
         self.since_attempt = 0
+        self.first_match_views = first_match_views
 
     def add(self, odom: NDArray[np.float64], points: NDArray[np.float64]) -> bool:
         """Keep this view if the robot moved since the last one (a robot standing still adds
@@ -65,9 +69,13 @@ class Views:
         wait = self.config.retry_every * 2 ** min(backoff, 2) if self.failures else 0
         if following:  # followed poses are being weighed: new ones now and then
             wait = max(wait, self.config.retry_every)
-        if len(self.views) < self.config.min_views or self.since_attempt < wait:
+        least = self.config.min_views
+        if self.first_match_views is not None:
+            least, wait = min(least, self.first_match_views), 0
+        if len(self.views) < least or self.since_attempt < wait:
             return False
         self.since_attempt = 0
+        self.first_match_views = None
         return True
 
     def _moved_since_last(self, odom: NDArray) -> bool:
