@@ -319,8 +319,11 @@ class Localizer:
                                                           cfg)
         t2 = perf_counter()
         self.stats.seconds["update"] += t2 - t1
+        scans_broke = (self.scan_odometry is not None and sensor == self._scan_odometry_sensor
+                       and self.scan_odometry.broke)
         decision = self.manager.re_search(t, status, verdict, guess, guess_cov, points, fix,
-                                          kinds, cfg.hough, lambda: self.tracker.odometry_at(t))
+                                          kinds, cfg.hough, lambda: self.tracker.odometry_at(t),
+                                          scans_broke)
         if decision is not None:
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)

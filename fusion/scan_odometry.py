@@ -127,6 +127,9 @@ class ScanOdometry:
         self.motion = motion
         self.matched = 0
         self.unmatched = 0
+        self.broke = False
+        """the last scan was matched to its predecessor and fitted it nowhere near the wheels'
+        increment: the scans stopped following each other (the robot was carried)"""
         self._wheels: NDArray[np.float64] | None = None  # newest wheel reading
         self._wheels_t = math.nan  # its time (NaN: not given)
         self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)  # between readings
@@ -169,6 +172,7 @@ class ScanOdometry:
         reading), or None when the scan cannot be matched; the first scan becomes the
         reference. ``points``: finite, robot frame (the Localizer has cleaned them)."""
         late, self._readings = self._wheels_late(t), 0
+        self.broke = False
         if self._wheels is None or len(points) < self.config.min_points:
             return None
         if self._points is None or t - self._time > self.config.max_interval or late:
@@ -181,6 +185,7 @@ class ScanOdometry:
         fused = self._fuse(wheel_step, icp)
         if fused is None:
             self.unmatched += 1
+            self.broke = True
             self.skip(t, points)
             return None
         self.matched += 1

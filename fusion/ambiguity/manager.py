@@ -106,7 +106,8 @@ class AmbiguityManager:
     def re_search(self, t: float, status: ScanStatus, verdict: Verdict, guess: NDArray,
                   guess_cov: NDArray, points: NDArray, fix: ScanCorrection,
                   kinds: tuple[str, ...], hough: HoughConfig,
-                  odometry: Callable[[], NDArray | None]) -> Decision | None:
+                  odometry: Callable[[], NDArray | None], scans_broke: bool = False
+                  ) -> Decision | None:
         """After a tracking scan's update (``status``): when the scan fits worse than usual (at
         the guess if no fix was accepted, at the fix if one was), the local search near the
         guess (:meth:`local_search`; its heading reach grows with ``guess_cov``), bounded by
@@ -119,7 +120,7 @@ class AmbiguityManager:
         # tracking failed and the prediction no longer fits: the odometry slipped, or
         # reported a motion the robot did not make. Look for the pose near it first.
         return self.local_search(t, guess, points, fix, kinds, max(guess_fit, fix_fit or 0.0),
-                                 hough, odometry(), guess_cov)
+                                 hough, odometry(), guess_cov, scans_broke)
 
     def wants_local_search(self, guess_fit: float | None, fix_fit: float | None = None) -> bool:
         """Is a local re-search on, and does the scan fit worse than usual
@@ -132,7 +133,8 @@ class AmbiguityManager:
     @one_blas_thread  # global matching's arrays: see one_blas_thread
     def local_search(self, t: float, guess: NDArray, points: NDArray, fix: ScanCorrection,
                      kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig,
-                     odom: NDArray | None, guess_cov: NDArray | None = None) -> Decision:
+                     odom: NDArray | None, guess_cov: NDArray | None = None,
+                     scans_broke: bool = False) -> Decision:
         """The pose near ``guess`` that the scan fits (:class:`LocalSearch`), within reach of
         the odometry ``odom``'s motion since the last accepted fix: it re-initialises the
         filter."""
@@ -147,16 +149,18 @@ class AmbiguityManager:
                 f"{math.degrees(wrap_scalar(shift[2])):.1f}°; {found.fit:.2f} of the points on "
                 f"walls (guess {guess_fit:.2f})"))
         cov = 0.5 * (found.cov + found.cov.T) + reinit_floor(self.config)
-        if (self._unexplained(shift, guess_cov, hough) or found.along_kept) and (
+        carried = scans_broke and self._unexplained(shift, guess_cov, hough)
+        if (carried or found.along_kept) and (
                 odom is not None and self.config.hypotheses is not None):
             # The search explains a motion the odometry did not report, and the neighbourhood
-            # searched does not bound it: the odometry's noise cannot explain the shift (the
-            # robot was carried, or turned by a push), or the scan did not observe the position
-            # along the corridor in view (the pose found keeps the guess's). The same motion
-            # may have carried the robot to a look-alike place beyond the neighbourhood (a
-            # door further on). The pose is followed as tracking's belief while a global match,
-            # of this view at once, proposes its rivals; it is taken when the scans single it
-            # out (mode_probability is 0 until then).
+            # searched does not bound it: the robot was carried (``scans_broke``: this scan
+            # fitted its predecessor nowhere near the wheels' increment, and the odometry's
+            # noise cannot explain the shift found either), or the scan did not observe the
+            # position along the corridor in view (the pose found keeps the guess's). The same
+            # motion may have carried the robot to a look-alike place beyond the neighbourhood
+            # (a door further on). The pose is followed as tracking's belief while a global
+            # match, of this view at once, proposes its rivals; it is taken when the scans
+            # single it out (mode_probability is 0 until then).
             self.belief.prior = (found.pose.copy(), cov.copy(), np.asarray(odom, float).copy())
             self._go(t, State.COLLECTING, "local re-search: the odometry missed a motion; a "
                      "global match contests the pose found")
@@ -171,7 +175,7 @@ class AmbiguityManager:
         nothing bounds it."""
         if guess_cov is None:
             return True
-        d = np.array((shift[0], shift[1], wrap_scalar(shift[2])))
+        d = np.array((shift[0], shift[1], wrap_scalar(float(shift[2]))))
         try:
             nis = float(d @ np.linalg.solve(guess_cov, d))
         except np.linalg.LinAlgError:
