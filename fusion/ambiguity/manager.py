@@ -6,7 +6,8 @@ States and triggers (:class:`fusion.status.State`)::
     tracking ──(scans without a usable fix: ambiguous, rejected, misfits (fixes that put the
     │           scan off the walls) or none, while the prediction no longer fits the scan
     │           either, that see through the map's walls from the belief; covariance too
-    │           large for the line spacing in view)──▶ collecting
+    │           large for the line spacing in view; a local re-search's pose after the robot
+    │           was carried, or with the position along a corridor unobserved)──▶ collecting
     collecting ──(enough views, spaced by motion)──▶ relocalizing (a global match, spread
     │            over scans: ``match_lookups_per_scan`` of it each)
     relocalizing ──▶ collecting, its poses followed, each by its own filter
