@@ -100,6 +100,48 @@ class ScanOdometryConfig(BaseModel):
         "χ²(3) quantile of their joint noise, the wheels' noise is scaled up to it (None: never)")
 
 
+THIN_WINDOW = 2.0
+"""s: the thin matches' disagreements are summed over this long (a person walking ahead stays
+in view about that long; older ones no longer say what moves now)"""
+SAME_DIRECTION = math.cos(math.radians(10.0))
+"""a weakest direction turned by more than 10° from the last one is another corridor, or the
+same seen from a turn: the sum starts again"""
+
+
+class ThinBias:
+    """Thin matches (``IcpResult.support`` below ``min_points``: one object observes the
+    weakest direction) that each disagree with the wheels within their joint noise, but all one
+    way: a person walking ahead of the robot, followed by the match. Summed over the last
+    ``THIN_WINDOW`` seconds along the same weakest direction u, the disagreements Σ uᵀΔ over
+    their variances Σ uᵀ(Q_w + Q_s)u are χ²₁ for an object that stands still; beyond the gate
+    the object moves, and the wheels are kept along u."""
+
+    def __init__(self, limit: float) -> None:
+        self.limit = limit
+        self._items: deque[tuple[float, float, float]] = deque()  # (t, along, variance)
+        self._u: NDArray[np.float64] | None = None
+
+    def reset(self) -> None:
+        self._items.clear()
+        self._u = None
+
+    def moving(self, t: float, u: NDArray[np.float64], along: float, variance: float) -> bool:
+        """Add one thin match at t; does the sum say the object moves?"""
+        if self._u is not None:
+            cosine = float(u @ self._u)
+            if abs(cosine) < SAME_DIRECTION:
+                self._items.clear()
+            elif cosine < 0.0:  # the same direction, its sign flipped
+                along, u = -along, -u
+        self._u = u
+        self._items.append((t, along, variance))
+        while self._items and self._items[0][0] < t - THIN_WINDOW:
+            self._items.popleft()
+        total = sum(a for _, a, _ in self._items)
+        spread = sum(v for _, _, v in self._items)
+        return total * total > self.limit * spread
+
+
 @dataclass(frozen=True, slots=True)
 class Correction:
     """A proposed corrected odometry pose for a scan; :meth:`ScanOdometry.commit` adopts it."""
@@ -147,6 +189,8 @@ class ScanOdometry:
                               else gate_threshold(config.robust_quantile, 3))
         self._thin_limit = (math.inf if config.robust_quantile is None
                             else gate_threshold(config.robust_quantile, 1))
+        self._thin = ThinBias(self._thin_limit)
+        self._now = -math.inf  # the time of the scan being matched
 
     @property
     def reference_time(self) -> float:
@@ -182,6 +226,7 @@ class ScanOdometry:
         raw_step = increment(self._anchor_wheels, self._wheels)
         wheel_step = self._scaled(raw_step)
         icp = self._align(points, wheel_step)
+        self._now = t
         fused = self._fuse(wheel_step, icp)
         if fused is None:
             self.unmatched += 1
@@ -302,10 +347,16 @@ class ScanOdometry:
             # its own motion explains it as well as a slip of the wheels, and nothing else in
             # the scan decides: the wheels' increment is kept along that direction (and the
             # robust step below does not blame the wheels for it).
+            # One match at a time cannot tell an object walking slowly ahead from a standing
+            # one: their sum over the last seconds can (ThinBias).
             u = np.array((icp.weakest[0], icp.weakest[1], 0.0))
             along = float(gap @ u)
-            if along * along > self._thin_limit * float(u @ (wheel_cov + scan_cov) @ u):
+            variance = float(u @ (wheel_cov + scan_cov) @ u)
+            moving = self._thin.moving(self._now, u[:2], along, variance)
+            if along * along > self._thin_limit * variance or moving:
                 scan_cov = scan_cov + _UNOBSERVED * np.outer(u, u)
+        else:
+            self._thin.reset()
         if c.robust_quantile is not None:
             # the two disagree beyond their joint noise: the wheels slipped or misreport (a good
             # match does not err by decimetres), so their noise is scaled up until they agree

@@ -464,3 +464,55 @@ def test_on_a_rigid_scene_the_objects_agree() -> None:
     q, dof = icp.disagreement
     assert dof >= 1 and q < chi2.ppf(0.99, dof)
     assert icp.delta[0] == pytest.approx(0.05, abs=0.005)
+
+
+def test_a_person_walking_ahead_in_a_featureless_corridor_does_not_carry_the_pose() -> None:
+    """Seed 12 starts in a featureless corridor with people walking ahead of the robot: along
+    the corridor the scan match sees only them, and each match disagrees with the wheels by
+    less than their joint noise, but all one way (the match reported half the wheels' way).
+    Fused match by match, the pose slid 0.56 m behind within 10 s, reported localized; the
+    disagreements summed over the last seconds say the object moves, and the wheels are kept
+    along the corridor: within 0.15 m (measured 0.10)."""
+    from fusion.run_log import run_log
+    from fusion.sim.building import building_scenario
+    from fusion.sim.poses import interpolate_poses
+    from fusion.sim.run import simulate
+
+    run = simulate(building_scenario(12))
+    events = (e for e in run.events() if e.t <= 12.0)
+    done = run_log(events, run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
+    truth = interpolate_poses(done.result.t, run.odom_t, run.odom_truth)
+    assert np.hypot(*(done.result.poses[:, :2] - truth[:, :2]).T).max() <= 0.15
+
+
+@settings(max_examples=50, deadline=None)
+@given(step=st.floats(0.01, 0.1), share=st.floats(0.2, 0.8), seed=st.integers(0, 10_000))
+def test_thin_bias_finds_an_object_that_moves(step, share, seed):
+    """Matches along one direction that each report ``share`` of a ``step`` the wheels drove
+    (an object walking ahead), with noise of σ = step/4 per match: within 2 s at 10 Hz the sum
+    says it moves, whichever way the weakest direction's sign is reported."""
+    from fusion.scan_odometry import ThinBias
+
+    rng = np.random.default_rng(seed)
+    bias = ThinBias(float(chi2.ppf(0.99, 1)))
+    sigma, moving = step / 4.0, False
+    for k in range(20):
+        sign = rng.choice((-1.0, 1.0))
+        gap = (share - 1.0) * step + rng.normal(0.0, sigma)
+        moving = bias.moving(0.1 * k, sign * np.array((1.0, 0.0)), sign * gap, sigma**2)
+    assert moving
+
+
+def test_thin_bias_rarely_blames_a_standing_object() -> None:
+    """Noise only, each match within its σ of the wheels: over 1000 windows of 20 matches,
+    the sum passes the 0.99 gate at some match of the window in about 5 % (the gate is tested
+    at every match); measured 5.5 %."""
+    from fusion.scan_odometry import ThinBias
+
+    rng = np.random.default_rng(0)
+    alarms = 0
+    for _ in range(1000):
+        bias = ThinBias(float(chi2.ppf(0.99, 1)))
+        alarms += any([bias.moving(0.1 * k, np.array((1.0, 0.0)), rng.normal(), 1.0)
+                       for k in range(20)])
+    assert alarms <= 80
