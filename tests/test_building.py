@@ -238,10 +238,10 @@ def test_a_kidnap_by_one_door_is_contested_though_the_doors_are_in_view():
 @pytest.mark.slow
 def test_held_out_buildings(tmp_path):
     """Seeds 1000–1049, never tuned on, run here only: the defaults' figures may not fall back
-    below what they were when these guards were set (measured: median ATE 31.3 cm and lost
-    5.9 % outside the kidnaps' 5 s, confident-wrong 0.04 % (27 of 50 seeds at most 0.1 %),
+    below what they were when these guards were set (measured: median ATE 29.5 cm and lost
+    3.6 % outside the kidnaps' 5 s, confident-wrong 0.04 % (39 of 50 seeds at most 0.1 %),
     25 of 50 kidnaps recovered within 5 s; docs/benchmark.md#generated-buildings). The issue's
-    goals are further: 2 cm, 1 %, 0.1 %, 95 %. (Their cost, 9.8 ms a scan at worst, is the
+    goals are further: 2 cm, 1 %, 0.1 %, 95 %. (Their cost, 11 ms a scan at worst, is the
     benchmark's to print.)"""
     import statistics
 
@@ -257,9 +257,9 @@ def test_held_out_buildings(tmp_path):
         return [float(r[name]) for r in rows if r[name] != ""]
 
     assert statistics.median(column("ate_outside_kidnap_m")) <= 0.45
-    assert statistics.median(column("lost_outside_kidnap_frac")) <= 0.075
+    assert statistics.median(column("lost_outside_kidnap_frac")) <= 0.05
     assert statistics.median(column("confident_wrong_frac")) <= 0.002
-    assert sum(v <= 0.001 for v in column("confident_wrong_frac")) >= 22
+    assert sum(v <= 0.001 for v in column("confident_wrong_frac")) >= 33
     assert sum(v <= 5.0 for v in column("recovery_s")) >= 21
 
 
