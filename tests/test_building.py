@@ -205,6 +205,26 @@ def test_a_kidnap_along_a_corridor_is_not_tracked_at_a_look_alike_door():
     assert scores["confident_wrong"] <= 0.02
 
 
+def _until_after_the_kidnap(seed: int, seconds: float):
+    """A generated building localized with the defaults until ``seconds`` after its kidnap:
+    the kidnap, the scans' times, their position (m) and heading (°) errors, and the
+    probabilities reported."""
+    from fusion.config import LocalizerConfig
+    from fusion.run_log import run_log
+    from fusion.sim.poses import interpolate_poses
+
+    cfg = building_scenario(seed)
+    kidnap = cfg.kidnaps[0]
+    run = simulate(cfg)
+    events = (e for e in run.events() if e.t <= kidnap.t + seconds)
+    done = run_log(events, run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
+    t, poses = done.result.t, done.result.poses
+    truth = interpolate_poses(t, run.odom_t, run.odom_truth)
+    off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    turned = np.degrees(np.abs((poses[:, 2] - truth[:, 2] + np.pi) % (2 * np.pi) - np.pi))
+    return kidnap, t, off, turned, done.result.localized_probability
+
+
 def test_a_kidnap_by_one_door_is_contested_though_the_doors_are_in_view():
     """Seed 44: carried 3.73 m along the main corridor, one door spacing, and turned 21.5°. The
     local re-search sees the doors, so it observes the position along the corridor: at the
@@ -214,24 +234,13 @@ def test_a_kidnap_by_one_door_is_contested_though_the_doors_are_in_view():
     (40 % of the run confidently wrong); now the robot is found within 2 s (measured 1.1 s)
     and no pose is reported localized while wrong."""
     from fusion.bench.generated import recovery_times
-    from fusion.config import LocalizerConfig
     from fusion.integrity import is_localized
-    from fusion.run_log import run_log
-    from fusion.sim.poses import interpolate_poses
 
-    cfg = building_scenario(44)
-    kidnap = cfg.kidnaps[0]
-    run = simulate(cfg)
-    events = (e for e in run.events() if e.t <= kidnap.t + 20.0)
-    done = run_log(events, run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
-    t, poses = done.result.t, done.result.poses
-    truth = interpolate_poses(t, run.odom_t, run.odom_truth)
-    off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
-    turned = np.degrees(np.abs((poses[:, 2] - truth[:, 2] + np.pi) % (2 * np.pi) - np.pi))
+    kidnap, t, off, turned, probability = _until_after_the_kidnap(44, 20.0)
     lost = (off > 0.3) | (turned > 5.0)
     assert recovery_times(t, lost, [kidnap.t])[0] <= 2.0
     after = t >= kidnap.t
-    assert not (lost[after] & is_localized(done.result.localized_probability[after])).any()
+    assert not (lost[after] & is_localized(probability[after])).any()
     assert not lost[t >= kidnap.t + 2.0].any()
 
 
@@ -316,20 +325,11 @@ def test_after_a_kidnap_the_pose_is_not_reported_localized_while_tracking_holds_
     that same evidence as it gathers: from the first scan that sees through walls the pose is
     no longer reported localized. Before, every one of those scans was reported localized while
     metres off (10 scans; now at most 1)."""
-    from fusion.config import LocalizerConfig
     from fusion.integrity import is_localized
-    from fusion.run_log import run_log
-    from fusion.sim.poses import interpolate_poses
 
-    cfg = building_scenario(1)
-    kidnap = cfg.kidnaps[0]
-    run = simulate(cfg)
-    events = (e for e in run.events() if e.t <= kidnap.t + 10.0)
-    done = run_log(events, run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
-    t, poses = done.result.t, done.result.poses
-    truth = interpolate_poses(t, run.odom_t, run.odom_truth)
-    wrong = np.hypot(*(poses[:, :2] - truth[:, :2]).T) > 0.3
-    localized = is_localized(done.result.localized_probability)
+    kidnap, t, off, _, probability = _until_after_the_kidnap(1, 10.0)
+    wrong = off > 0.3
+    localized = is_localized(probability)
     after = t >= kidnap.t
     assert wrong[after].sum() >= 10  # the kidnap is not found at once
     assert (localized & wrong & after).sum() <= 1
