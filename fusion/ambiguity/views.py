@@ -42,13 +42,13 @@ class Views:
     def clear(self) -> None:
         self.views.clear()
 
-    def restart(self, first_match_views: int | None = None) -> None:
-        """Tracking was given up: collect from scratch, with no failure counted; the first
-        match after ``first_match_views`` views when given."""
+    def restart(self) -> None:
+        """Tracking was given up: collect from scratch, with no failure counted (and the first
+        match after ``min_views`` again)."""
         self.views.clear()
         self.failures = 0
         self.since_attempt = 0
-        self.first_match_views = first_match_views
+        self.first_match_views = None
 
     def add(self, odom: NDArray[np.float64], points: NDArray[np.float64]) -> bool:
         """Keep this view if the robot moved since the last one (a robot standing still adds
