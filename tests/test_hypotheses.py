@@ -28,6 +28,7 @@ from tests.test_ambiguity import OFFICE, drive, kidnap_run, kidnap_trial, settle
 COV = np.diag([0.05**2, 0.05**2, math.radians(1.0) ** 2])
 # poses of the office far apart from each other: no two merge
 SPOTS = [np.array([2.0 + 4.0 * i, 3.0, 0.0]) for i in range(6)]
+STEP = HypothesisConfig().update_distance + 0.01  # m between scans: each is weighed
 
 
 def bank(office, fits, config: HypothesisConfig | None = None, through=None) -> HypothesisBank:
@@ -48,10 +49,11 @@ def bank(office, fits, config: HypothesisConfig | None = None, through=None) -> 
                           lambda poses, points: np.asarray(fits(poses), float), shares)
 
 
-def weigh(b: HypothesisBank, odom=(0.5, 0.0, 0.0), least_fit: float | None = None):
-    """One scan of a few points that match no map line (the filters keep their poses)."""
+def weigh(b: HypothesisBank, odom=(STEP, 0.0, 0.0), least_fit: float | None = None):
+    """One scan of a few points that match no map line (the filters keep their poses), taken
+    at 1 m/s along x (a step in no time would be a jump the filters refuse)."""
     points = np.array([[0.3, 0.0], [0.3, 0.01], [0.31, 0.0]])
-    return b.step(1.0, np.array(odom, float), points, HoughConfig(), least_fit)
+    return b.step(1.0 + float(odom[0]), np.array(odom, float), points, HoughConfig(), least_fit)
 
 
 @settings(max_examples=50, deadline=None)
@@ -92,7 +94,7 @@ def test_a_pose_that_sees_through_walls_loses_to_one_that_fits_less(office) -> N
     b = bank(office, lambda poses: [0.6, 0.7][: len(poses)], through=lambda poses: [0.0, 0.2])
     b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
     weigh(b)
-    moved = 0.5  # the odometry of the weighed scan
+    moved = STEP  # the odometry of the weighed scan
     assert b.leader.pose[0] == pytest.approx(SPOTS[0][0] + moved, abs=0.01)
     assert b.leader.weight == pytest.approx(1.0 / 1.05)
     b = bank(office, lambda poses: [0.6, 0.7][: len(poses)])  # nothing seen through walls
@@ -117,7 +119,7 @@ def test_a_belief_in_a_room_the_map_lacks_is_kept_against_a_look_alike(office, b
     b.seed(0.0, np.zeros(3), SPOTS[:1], [COV], [1.0], origin="tracked")
     b.seed(0.0, np.zeros(3), SPOTS[1:2], [COV], [1.0])
     for k in range(1, 4):
-        weigh(b, odom=(0.2 * k, 0.0, 0.0))
+        weigh(b, odom=(STEP * k, 0.0, 0.0))
     belief = next(h for h in b.hypotheses if h.origin == "tracked") if any(
         h.origin == "tracked" for h in b.hypotheses) else None
     if kept:
@@ -131,10 +133,39 @@ def test_a_robot_standing_still_adds_no_evidence(office) -> None:
     ``update_distance`` (or turned ``update_angle_deg``)."""
     b = bank(office, lambda poses: [0.9, 0.5][: len(poses)])
     b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
-    weigh(b, odom=(0.05, 0.0, 0.0))
+    weigh(b, odom=(0.9 * STEP, 0.0, 0.0))
     assert [h.weight for h in b.hypotheses] == [0.5, 0.5]
-    weigh(b, odom=(0.15, 0.0, 0.0))
+    weigh(b, odom=(1.1 * STEP, 0.0, 0.0))
     assert b.hypotheses[0].weight == pytest.approx(1.0 / 1.05)  # 1/ε = 20 to 1
+
+
+def test_a_feature_seen_along_a_doorway_weighs_once(office) -> None:
+    """A pane of glass beside the right pose puts 0.3 of each scan through a wall for 0.7 m; a
+    look-alike one module on sees nothing through. Scans every 0.1 m of that stretch see the
+    same pane: together they weigh as one scan (20 to 1 at most), which is short of taking the
+    look-alike (two weighed scans); counted seven times, they weighed 20⁷ to 1."""
+    b = bank(office, lambda poses: [0.7, 0.7][: len(poses)],
+             through=lambda poses: np.where(poses[:, 0] < 4.0, 0.3, 0.0))
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    verdicts = [weigh(b, odom=(0.1 * k, 0.0, 0.0)) for k in range(1, 8)]
+    assert all(v.pose is None for v in verdicts)
+    assert sorted(h.weight for h in b.hypotheses) == pytest.approx([0.05 / 1.05, 1.0 / 1.05])
+
+
+def test_a_pose_proposed_again_is_not_new_evidence(office) -> None:
+    """Global matches run again while poses are followed; one that proposes a followed pose
+    again adds nothing to its weight (its score and prior are in it already), and a new place
+    joins at the leader's weight times its prior."""
+    b = bank(office, lambda poses: [0.7] * len(poses))
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0], [0.8, 0.2])
+    assert sorted(h.weight for h in b.hypotheses) == pytest.approx([0.2, 0.8])
+    for _ in range(3):  # the look-alike nearest the old belief, proposed again and again
+        b.seed(0.0, np.zeros(3), [SPOTS[0] + [0.01, 0.0, 0.0]], [COV], [1.0], [0.8])
+    assert sorted(h.weight for h in b.hypotheses) == pytest.approx([0.2, 0.8])
+    b.seed(0.0, np.zeros(3), [SPOTS[0], SPOTS[2]], [COV, COV], [1.0, 1.0], [0.8, 0.5])
+    assert len(b) == 3
+    assert sorted(h.weight for h in b.hypotheses) == pytest.approx(
+        np.array([0.2, 0.4, 0.8]) / 1.4)
 
 
 def test_poses_that_meet_merge_and_weak_ones_are_dropped(office) -> None:
@@ -144,10 +175,10 @@ def test_poses_that_meet_merge_and_weak_ones_are_dropped(office) -> None:
     assert len(b) == 2 and sorted(h.weight for h in b.hypotheses) == [0.5, 0.5]
     b = bank(office, lambda poses: [1.0, 0.5, 0.95][: len(poses)])
     b.seed(0.0, np.zeros(3), SPOTS[:3], [COV] * 3, [1.0, 1.0, 1.0])
-    weigh(b, odom=(0.2, 0.0, 0.0))  # 0.5³⁰ ≈ 1e-9 of the best, bounded at ε = 0.05 a scan
+    weigh(b, odom=(STEP, 0.0, 0.0))  # 0.5³⁰ ≈ 1e-9 of the best, bounded at ε = 0.05 a scan
     assert len(b) == 3
-    weigh(b, odom=(0.4, 0.0, 0.0))
-    weigh(b, odom=(0.6, 0.0, 0.0))  # 0.05³ of the best: below the pruning floor, dropped
+    weigh(b, odom=(2 * STEP, 0.0, 0.0))
+    weigh(b, odom=(3 * STEP, 0.0, 0.0))  # 0.05³ of the best: below the pruning floor, dropped
     assert len(b) == 2 and sum(h.weight for h in b.hypotheses) == pytest.approx(1.0)
 
 
@@ -156,14 +187,14 @@ def test_the_best_of_poses_that_all_fit_poorly_is_not_taken(office) -> None:
     and 0.1: the first gets nearly all the weight, yet is no pose to take (none is right)."""
     b = bank(office, lambda poses: [0.3, 0.1][: len(poses)])
     b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
-    verdicts = [weigh(b, odom=(0.2 * k, 0.0, 0.0), least_fit=0.45) for k in range(1, 4)]
+    verdicts = [weigh(b, odom=(STEP * k, 0.0, 0.0), least_fit=0.45) for k in range(1, 4)]
     assert b.hypotheses[0].weight > 0.99 and all(v.pose is None for v in verdicts)
     b = bank(office, lambda poses: [0.8, 0.1][: len(poses)])
     b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
-    verdicts = [weigh(b, odom=(0.2 * k, 0.0, 0.0), least_fit=0.45) for k in range(1, 4)]
+    verdicts = [weigh(b, odom=(STEP * k, 0.0, 0.0), least_fit=0.45) for k in range(1, 4)]
     assert verdicts[0].pose is None  # one weighed scan is not enough (min_scans 2)
-    assert verdicts[1].pose is not None  # the first, carried 0.4 m by the odometry
-    assert np.allclose(verdicts[1].pose[:2], SPOTS[0][:2] + [0.4, 0.0], atol=0.01)
+    assert verdicts[1].pose is not None  # the first, carried two steps by the odometry
+    assert np.allclose(verdicts[1].pose[:2], SPOTS[0][:2] + [2 * STEP, 0.0], atol=0.01)
 
 
 def test_no_scan_and_no_landmark_weighs_more_than_one_over_epsilon(office) -> None:
@@ -241,7 +272,7 @@ def test_a_right_pose_that_fits_a_little_below_tracking_is_taken(office) -> None
     for fit in (0.92, 0.85):
         b = bank(office, lambda poses, f=fit: [f, 0.1][: len(poses)])
         b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
-        verdicts[fit] = [weigh(b, odom=(0.2 * k, 0.0, 0.0), least_fit=0.94) for k in (1, 2, 3)]
+        verdicts[fit] = [weigh(b, odom=(STEP * k, 0.0, 0.0), least_fit=0.94) for k in (1, 2, 3)]
     assert verdicts[0.92][1].pose is not None
     assert all(v.pose is None for v in verdicts[0.85])
 
