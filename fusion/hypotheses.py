@@ -253,10 +253,11 @@ class HypothesisBank:
         followed = list(self.hypotheses)
         for pose, cov, score, prior in list(zip(poses, covs, scores, priors, strict=True))[
                 :self.config.max_hypotheses]:
-            tracker = self._make_tracker(np.asarray(pose, float), np.asarray(cov, float))
-            tracker.on_odometry(t, *odom)
-            if any(self._same_pose(tracker.pose, tracker.cov, h) for h in followed):
+            pose, cov = np.asarray(pose, float), np.asarray(cov, float)
+            if any(self._same_pose(pose, cov, h) for h in followed):
                 continue
+            tracker = self._make_tracker(pose, cov)
+            tracker.on_odometry(t, *odom)
             self.hypotheses.append(Hypothesis(tracker, scale * max(score * prior, 1e-6), origin))
         if self._last_update is None:
             self._last_update = np.asarray(odom, float).copy()

@@ -190,7 +190,6 @@ class ScanOdometry:
         self._thin_limit = (math.inf if config.robust_quantile is None
                             else gate_threshold(config.robust_quantile, 1))
         self._thin = ThinBias(self._thin_limit)
-        self._now = -math.inf  # the time of the scan being matched
 
     @property
     def reference_time(self) -> float:
@@ -226,8 +225,7 @@ class ScanOdometry:
         raw_step = increment(self._anchor_wheels, self._wheels)
         wheel_step = self._scaled(raw_step)
         icp = self._align(points, wheel_step)
-        self._now = t
-        fused = self._fuse(wheel_step, icp)
+        fused = self._fuse(t, wheel_step, icp)
         if fused is None:
             self.unmatched += 1
             self.broke = True
@@ -309,11 +307,11 @@ class ScanOdometry:
                   + self.motion.noise(self._scaled(raw_step)))[:2, :2]
         return distance, float(along @ icp.delta[:2]), float(along @ spread @ along)
 
-    def _fuse(self, wheel_step: NDArray[np.float64], icp: IcpResult | None
+    def _fuse(self, t: float, wheel_step: NDArray[np.float64], icp: IcpResult | None
               ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """δ = Q (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s) with Q = (Q_w⁻¹ + Q_s⁻¹)⁻¹, the information-weighted
-        increment and its covariance; None when the match is unusable or too far from the
-        wheels to be believed."""
+        increment and its covariance, for the scan at time ``t``; None when the match is
+        unusable or too far from the wheels to be believed."""
         c = self.config
         if icp is None or icp.overlap < c.min_overlap:
             return None
@@ -352,7 +350,7 @@ class ScanOdometry:
             u = np.array((icp.weakest[0], icp.weakest[1], 0.0))
             along = float(gap @ u)
             variance = float(u @ (wheel_cov + scan_cov) @ u)
-            moving = self._thin.moving(self._now, u[:2], along, variance)
+            moving = self._thin.moving(t, u[:2], along, variance)
             if along * along > self._thin_limit * variance or moving:
                 scan_cov = scan_cov + _UNOBSERVED * np.outer(u, u)
         else:

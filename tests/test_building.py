@@ -13,6 +13,7 @@ import pytest
 from fusion.bench.generated import outside_allowance, recovery_times
 from fusion.bench.spec import SpecError, load_spec
 from fusion.bench.sweep import run_sweep
+from fusion.integrity import LOCALIZED_HEADING_DEG, LOCALIZED_POSITION
 from fusion.sim import scenario_preset, simulate
 from fusion.sim.building import (
     MIN_DOOR,
@@ -23,6 +24,7 @@ from fusion.sim.building import (
 )
 from fusion.sim.raycast import segment_segment_distance
 from fusion.sim.world import wall_segments
+from houghloc.geometry import wrap_angle
 from houghloc.segment_map import SegmentMap
 
 
@@ -185,23 +187,13 @@ def test_a_kidnap_along_a_corridor_is_not_tracked_at_a_look_alike_door():
     the corridor for 47 s when the re-search's pose was taken as it was), and is not reported
     localized where it is lost meanwhile."""
     from fusion.bench.generated import recovery_times
-    from fusion.config import LocalizerConfig
     from fusion.integrity import integrity_scores
-    from fusion.run_log import run_log
-    from fusion.sim.poses import interpolate_poses
 
-    cfg = building_scenario(18)
-    run = simulate(cfg)
-    done = run_log(run.events(), run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
-    t, poses = done.result.t, done.result.poses
-    truth = interpolate_poses(t, run.odom_t, run.odom_truth)
-    off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
-    turned = np.degrees(np.abs((poses[:, 2] - truth[:, 2] + np.pi) % (2 * np.pi) - np.pi))
-    lost = (off > 0.3) | (turned > 5.0)
-    kidnap = cfg.kidnaps[0].t
-    assert recovery_times(t, lost, [kidnap])[0] <= 10.0
-    after = (t >= kidnap) & (t < kidnap + 15.0)
-    scores = integrity_scores(done.result.localized_probability[after], ~lost[after])
+    kidnap, t, off, turned, probability = _until_after_the_kidnap(18, 15.0)
+    lost = _lost(off, turned)
+    assert recovery_times(t, lost, [kidnap.t])[0] <= 10.0
+    after = t >= kidnap.t
+    scores = integrity_scores(probability[after], ~lost[after])
     assert scores["confident_wrong"] <= 0.02
 
 
@@ -218,11 +210,20 @@ def _until_after_the_kidnap(seed: int, seconds: float):
     run = simulate(cfg)
     events = (e for e in run.events() if e.t <= kidnap.t + seconds)
     done = run_log(events, run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
-    t, poses = done.result.t, done.result.poses
-    truth = interpolate_poses(t, run.odom_t, run.odom_truth)
-    off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
-    turned = np.degrees(np.abs((poses[:, 2] - truth[:, 2] + np.pi) % (2 * np.pi) - np.pi))
+    t = done.result.t
+    off, turned = _errors(done.result.poses, interpolate_poses(t, run.odom_t, run.odom_truth))
     return kidnap, t, off, turned, done.result.localized_probability
+
+
+def _errors(poses: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each pose's position (m) and heading (°) error against the truth."""
+    off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    return off, np.degrees(np.abs(wrap_angle(poses[:, 2] - truth[:, 2])))
+
+
+def _lost(off: np.ndarray, turned: np.ndarray) -> np.ndarray:
+    """Beyond the benchmark's bound: more than 0.3 m or 5° off."""
+    return (off > LOCALIZED_POSITION) | (turned > LOCALIZED_HEADING_DEG)
 
 
 def test_a_kidnap_by_one_door_is_contested_though_the_doors_are_in_view():
@@ -237,7 +238,7 @@ def test_a_kidnap_by_one_door_is_contested_though_the_doors_are_in_view():
     from fusion.integrity import is_localized
 
     kidnap, t, off, turned, probability = _until_after_the_kidnap(44, 20.0)
-    lost = (off > 0.3) | (turned > 5.0)
+    lost = _lost(off, turned)
     assert recovery_times(t, lost, [kidnap.t])[0] <= 2.0
     after = t >= kidnap.t
     assert not (lost[after] & is_localized(probability[after])).any()
@@ -271,12 +272,12 @@ def test_the_poses_the_bank_takes_are_as_often_wrong_as_its_weights_say(monkeypa
         run = simulate(building_scenario(seed))
         taken.clear()
         run_log(run.events(), run.map, LocalizerConfig(), initial_pose=run.scan_truth[0])
-        for t, weight, pose in taken:
-            truth = interpolate_poses(np.array([t]), run.odom_t, run.odom_truth)[0]
-            turned = abs((pose[2] - truth[2] + math.pi) % (2 * math.pi) - math.pi)
-            wrong += math.hypot(*(pose[:2] - truth[:2])) > 0.3 or math.degrees(turned) > 5.0
-            promised += 1.0 - weight
-            count += 1
+        if taken:
+            t, weights, poses = (np.array(column) for column in zip(*taken, strict=True))
+            wrong += int(_lost(*_errors(poses, interpolate_poses(t, run.odom_t,
+                                                                 run.odom_truth))).sum())
+            promised += float(np.sum(1.0 - weights))
+            count += len(taken)
     assert count >= 40  # a kidnap in every seed: most are relocalized through the bank
     assert wrong <= promised + 3.0 * math.sqrt(promised), (wrong, promised, count)
 
@@ -332,9 +333,9 @@ def test_through_an_odometry_gap_the_pose_moves_on_or_says_it_is_lost():
     moved = np.hypot(*(poses[inside[-1], :2] - poses[inside[0], :2]))
     truly = np.hypot(*(truth[inside[-1], :2] - truth[inside[0], :2]))
     assert truly > 1.0 and abs(moved - truly) < 0.2
-    off = np.hypot(*(poses[:, :2] - truth[:, :2]).T)
+    off, _ = _errors(poses, truth)
     localized = is_localized(done.result.localized_probability)
-    assert not (localized[inside] & (off[inside] > 0.3)).any()
+    assert not (localized[inside] & (off[inside] > LOCALIZED_POSITION)).any()
 
 
 def test_lost_poses_are_placed_where_they_were_lost():
@@ -365,7 +366,7 @@ def test_after_a_kidnap_the_pose_is_not_reported_localized_while_tracking_holds_
     from fusion.integrity import is_localized
 
     kidnap, t, off, _, probability = _until_after_the_kidnap(1, 10.0)
-    wrong = off > 0.3
+    wrong = off > LOCALIZED_POSITION
     localized = is_localized(probability)
     after = t >= kidnap.t
     assert wrong[after].sum() >= 10  # the kidnap is not found at once
