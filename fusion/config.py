@@ -19,6 +19,7 @@ from fusion.ambiguity import AmbiguityConfig
 from fusion.motion import OdometryMotionConfig
 from fusion.resources import find_config
 from fusion.scan_odometry import ScanOdometryConfig
+from fusion.wheel_scale import WheelScaleConfig
 from houghloc import HoughConfig
 from houghloc.yaml_io import read_yaml, validated
 
@@ -65,6 +66,7 @@ class FilterConfig(_Strict):
     """The EKF and its history of delayed measurements (docs/method.md §7)."""
 
     motion: OdometryMotionConfig = OdometryMotionConfig()
+    wheel_scale: WheelScaleConfig = WheelScaleConfig()
     initial_sigma_xy: float = Field(0.05, gt=0.0,
                                     description="m; σ in x and y of an initial pose given")
     initial_sigma_theta_deg: float = Field(1.0, gt=0.0,

@@ -34,6 +34,7 @@ from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
 from fusion.tracker import warm_up as warm_up_filter
 from fusion.visualize import Logger, NullLogger
+from fusion.wheel_scale import WheelScaleLearner
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points, within_range
 from houghloc.jit import warm_up
@@ -149,7 +150,11 @@ class Localizer:
         self.tracker = PoseTracker.from_config(fc, pose)
         self.stats = LocalizerStats()
         calibration = OdometryCalibration(fc.motion.translation_scale, fc.motion.rotation_scale)
-        self._calibrate = None if calibration.identity else calibration
+        # the wheels' scale learned from full fixes (None: the configured one, as it is)
+        self.wheel_scale = (None if fc.wheel_scale.sigma is None else WheelScaleLearner(
+            fc.wheel_scale, fc.motion.translation_scale))
+        self._calibrate = (None if calibration.identity and self.wheel_scale is None
+                           else calibration)
         self._scan_odometry_sensor = self.config.scan_odometry_sensor
         self.scan_odometry = (None if self._scan_odometry_sensor is None else
                               ScanOdometry(self.config.scan_odometry, self.tracker.motion))
@@ -250,11 +255,19 @@ class Localizer:
 
     def _use_odometry(self, t: float, x: float, y: float, theta: float,
                       unmeasured: float = 0.0) -> None:
+        learner = self.wheel_scale
+        if learner is not None:
+            learner.on_wheels(t, x, y, theta, broken=unmeasured > 0.0)
         if self._calibrate is not None:
+            if learner is not None:
+                self._calibrate.translation_scale = learner.value
             x, y, theta = self._calibrate(x, y, theta)
         if self.scan_odometry is not None and math.isfinite(x + y + theta):
             x, y, theta = self.scan_odometry.on_wheels(x, y, theta, unmeasured, t)
+        jumps = self.tracker.counts.odometry_jumps
         self.tracker.on_odometry(t, x, y, theta, unmeasured)
+        if learner is not None and self.tracker.counts.odometry_jumps > jumps:
+            learner.forget()  # the wheels' path across a jump is no chord of the robot's
         self.logger.log_odometry(t, (x, y, theta))
 
     def on_scan(self, t: float, ranges: ArrayLike, angles: ArrayLike,
@@ -304,6 +317,7 @@ class Localizer:
         if self.scan_odometry is not None and sensor == self._scan_odometry_sensor:
             self._correct_odometry(t, points)
         if self.manager.state is not State.TRACKING:
+            self._forget_chord()
             return self._global_step(t, points, sensor)
         prior = self.tracker.pose_at(t)
         if prior is None:
@@ -317,6 +331,9 @@ class Localizer:
         verdict = self.manager.judge(guess, fix, points, kinds, cfg.min_fix_lines)
         status, outcome, along, by_points = self._use_fix(t, fix, verdict, guess_cov, points,
                                                           cfg)
+        if (self.wheel_scale is not None and outcome is not None and outcome.accepted
+                and fix.rank == 3 and along is None and by_points is None):
+            self.wheel_scale.on_fix(t, fix.pose, fix.cov)  # a full fix: a chord's end
         t2 = perf_counter()
         self.stats.seconds["update"] += t2 - t1
         scans_broke = (self.scan_odometry is not None and sensor == self._scan_odometry_sensor
@@ -330,6 +347,7 @@ class Localizer:
             if (decision.reset_pose is not None and decision.reset_cov is not None
                     and self.tracker.reset(decision.reset_pose, decision.reset_cov)):
                 status, outcome, along, by_points = ScanStatus.RE_SEARCHED, None, None, None
+                self._forget_chord()
         estimate = self._finish(t, status, fix, outcome, sensor, points, along=along,
                                 by_points=by_points)
         refs = fix.references
@@ -339,6 +357,11 @@ class Localizer:
                                    None if refs is None else (refs.theta, refs.rho),
                                    verdict.guess_fit, points, kinds)
         return estimate
+
+    def _forget_chord(self) -> None:
+        """The belief jumped or was given up: a fix before it and one after are no chord."""
+        if self.wheel_scale is not None:
+            self.wheel_scale.forget()
 
     def _correct_odometry(self, t: float, points: NDArray) -> None:
         """The odometry at the scan corrected by matching it to the previous scan."""

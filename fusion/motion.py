@@ -114,10 +114,10 @@ class WheelScale:
     """The wheels' distance scale s, estimated online from measured increments: a scalar Kalman
     filter on the true distance per wheel-reported metre.
 
-    State s ~ N(ŝ, P), from N(1, ``prior_sigma``²). Between updates s is a random walk over the
-    distance driven d (the tyres wear, the load changes): P ← P + ``drift``²·d. An increment whose
-    wheels drove w metres along the unit direction u, and which another sensor measured as the
-    translation m with covariance M, observes
+    State s ~ N(ŝ, P), from N(``initial``, ``prior_sigma``²). Between updates s is a random walk
+    over the distance driven d (the tyres wear, the load changes): P ← P + ``drift``²·d. An
+    increment whose wheels drove w metres along the unit direction u, and which another sensor
+    measured as the translation m with covariance M, observes
 
         z = uᵀ m = s·w + v,    v ~ N(0, R),  R = uᵀ M u + r_w
 
@@ -127,8 +127,8 @@ class WheelScale:
     not the scale, and is skipped."""
 
     def __init__(self, prior_sigma: float = 0.1, drift: float = 0.001,
-                 gate: float = 0.99) -> None:
-        self.value = 1.0
+                 gate: float = 0.99, initial: float = 1.0) -> None:
+        self.value = initial
         self.variance = prior_sigma**2
         self.drift = drift
         self.limit = float(chi2.ppf(gate, 1))

@@ -348,13 +348,14 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
             k: round(1e3 * v / n, 4) for k, v in result.seconds.items() if n and k != "total"},
         "scans_per_second": _finite(result.scans_per_second),
     }
+    learner = localizer.wheel_scale
+    if learner is not None:
+        doc["wheel_scale"] = {"estimate": round(learner.value, 6),
+                              "sigma": round(math.sqrt(learner.scale.variance), 6),
+                              "updates": learner.scale.updates}
     so = localizer.scan_odometry
     if so is not None:
         doc["scan_odometry"] = {"matched": so.matched, "unmatched": so.unmatched}
-        if so.scale is not None:
-            doc["scan_odometry"]["wheel_scale"] = {
-                "estimate": round(so.scale.value, 6),
-                "sigma": round(math.sqrt(so.scale.variance), 6), "updates": so.scale.updates}
     if read_stats is not None:
         doc["log"] = {"records": read_stats.records, "skipped": read_stats.skipped,
                       "backwards_timestamps": read_stats.backwards_timestamps,

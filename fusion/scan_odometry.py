@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
 
-from fusion.motion import OdometryMotionModel, WheelScale, increment
+from fusion.motion import OdometryMotionModel, increment
 from fusion.scan_icp import IcpResult, point_to_line_icp
 from houghloc.geometry import compose, wrap_scalar
 from houghloc.matching import gate_threshold
@@ -89,12 +89,6 @@ class ScanOdometryConfig(BaseModel):
         60.0, gt=0, description="s; a scan this long after the previous one is not matched to "
         "it but becomes the reference (the odometry history since the previous scan is kept "
         "for the match, one entry per wheel reading)")
-    wheel_scale_sigma: float | None = Field(
-        None, gt=0, description="the wheels' distance scale is estimated online from the "
-        "matches, from 1 ± this (how far from nominal a wheel's radius may be, e.g. 0.1; None: "
-        "not estimated, each matched increment corrects the wheels' distance by itself)")
-    wheel_scale_drift: float = Field(
-        0.001, ge=0, description="how fast that scale may change, σ per √m driven")
     robust_quantile: float | None = Field(
         0.99, gt=0.5, lt=1.0, description="when the wheels and the match disagree beyond this "
         "χ²(3) quantile of their joint noise, the wheels' noise is scaled up to it (None: never)")
@@ -152,8 +146,6 @@ class Correction:
     step_cov: NDArray[np.float64]  # covariance of the corrected increment since then
     points: NDArray[np.float64]
     wheels: NDArray[np.float64]  # the wheel odometry pose it corrects
-    # the wheels' distance (unscaled), the match's along it and that one's variance
-    scale_evidence: tuple[float, float, float] | None = None
 
 
 class ScanOdometry:
@@ -181,8 +173,6 @@ class ScanOdometry:
         self._points: NDArray[np.float64] | None = None  # the reference scan
         self._time = -math.inf  # and its time
         self._unmeasured = 0.0  # seconds of motion the wheels missed since the reference scan
-        self.scale = (None if config.wheel_scale_sigma is None
-                      else WheelScale(config.wheel_scale_sigma, config.wheel_scale_drift))
         floors = (config.floor_xy**2, config.floor_xy**2, math.radians(config.floor_theta_deg)**2)
         self._floor = np.diag(floors)
         self._robust_limit = (math.inf if config.robust_quantile is None
@@ -222,8 +212,7 @@ class ScanOdometry:
             self.skip(t, points)
             return None
         assert self._anchor is not None and self._anchor_wheels is not None  # set with _points
-        raw_step = increment(self._anchor_wheels, self._wheels)
-        wheel_step = self._scaled(raw_step)
+        wheel_step = increment(self._anchor_wheels, self._wheels)
         icp = self._align(points, wheel_step)
         fused = self._fuse(t, wheel_step, icp)
         if fused is None:
@@ -233,9 +222,7 @@ class ScanOdometry:
             return None
         self.matched += 1
         step, cov = fused
-        assert icp is not None
-        return Correction(t, compose(self._anchor, step), self._time, cov, points, self._wheels,
-                          self._scale_evidence(raw_step, icp))
+        return Correction(t, compose(self._anchor, step), self._time, cov, points, self._wheels)
 
     def _wheels_late(self, t: float) -> bool:
         """The wheels have missed a reading before the scan at t: none came since the previous
@@ -253,8 +240,6 @@ class ScanOdometry:
         self._points, self._anchor_wheels, self._anchor = (correction.points, correction.wheels,
                                                            correction.pose)
         self._time, self._unmeasured = correction.t, 0.0
-        if self.scale is not None and correction.scale_evidence is not None:
-            self.scale.update(*correction.scale_evidence)
 
     def skip(self, t: float, points: NDArray[np.float64]) -> None:
         """The scan was not corrected: it becomes the reference at its uncorrected pose (an older
@@ -283,29 +268,7 @@ class ScanOdometry:
         """The newest wheel reading in the corrected frame: chained onto the reference scan."""
         assert self._anchor is not None and self._anchor_wheels is not None
         assert self._wheels is not None
-        return compose(self._anchor, self._scaled(increment(self._anchor_wheels, self._wheels)))
-
-    def _scaled(self, step: NDArray[np.float64]) -> NDArray[np.float64]:
-        """A wheel increment with its distance scaled by the estimate (the scale is fixed
-        between two scans, so scaling the whole step scales each reading's within it)."""
-        if self.scale is None:
-            return step
-        return np.array((step[0] * self.scale.value, step[1] * self.scale.value, step[2]))
-
-    def _scale_evidence(self, raw_step: NDArray[np.float64],
-                        icp: IcpResult) -> tuple[float, float, float] | None:
-        """What a match says of the wheels' scale (:class:`fusion.motion.WheelScale`): the
-        distance the wheels drove, the match's translation along it and that one's variance
-        (the match's and the wheels' random noise). None when there is nothing to learn: no
-        drive, or motion the wheels missed."""
-        distance = math.hypot(raw_step[0], raw_step[1])
-        if (self.scale is None or self._unmeasured > 0.0
-                or distance < self.motion.config.heading_min_translation):
-            return None
-        along = raw_step[:2] / distance
-        spread = (icp.cov * self.config.noise_scale + self._floor
-                  + self.motion.noise(self._scaled(raw_step)))[:2, :2]
-        return distance, float(along @ icp.delta[:2]), float(along @ spread @ along)
+        return compose(self._anchor, increment(self._anchor_wheels, self._wheels))
 
     def _fuse(self, t: float, wheel_step: NDArray[np.float64], icp: IcpResult | None
               ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:

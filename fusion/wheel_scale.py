@@ -1,0 +1,175 @@
+"""The wheels' distance scale, learned from pairs of full pose fixes.
+
+Zero-mean odometry noise cannot absorb a scale error. Where the scans observe the pose only
+across a corridor (a featureless corridor gives partial fixes), the position along it is dead
+reckoning, and wheels that over-report by 3 % drift 0.3 m in 10 m while the filter's random walk
+says a few centimetres. The scale belongs to the wheels, not to the place: it is learned where
+the scans fix the whole pose and used where they do not.
+
+Two full fixes z_a, z_b (Hough fixes of rank 3 the filter accepted) observe it when the robot
+went at least ``baseline`` between them along a nearly straight path: every full fix from the
+first to the second heads within ``max_turn_deg`` of the chord z_b − z_a (backwards driving
+folded onto forwards). The path is then about as long as
+
+    m = |z_b − z_a| / mean_i cos δ_i,
+
+δ_i those fixes' headings from the chord (a path that leaves its chord by δ is 1/cos δ longer;
+the fixes sample it evenly at a steady speed), and the wheels, which report w metres of path
+between the readings at the two fixes, observe
+
+    m = s·w + v,
+
+v the fixes' noise along the chord plus the wheels' random noise over the path
+(``wheel_noise``² per metre: the motion model's α₃ is wider, as it must also cover the scale
+error this removes). The wheels' path length is used, not their chord: wheels whose radii
+differ report a straight path as an arc, whose chord is shorter, but not its length. Each pair
+updates a scalar Kalman filter on s (:class:`fusion.motion.WheelScale`); consecutive pairs
+share no fix, so their noises are independent. The fixes need not be at the right place: a
+look-alike place gives the same chord.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import BaseModel, ConfigDict, Field
+
+from fusion.motion import WheelScale
+
+_PENDING = 16
+"""fixes waiting for the wheel reading after them (a few scans' worth: readings come at 5–100 Hz)"""
+_HEADINGS = 1024
+"""full fixes between two ends of a chord at most (a robot that stands still starts afresh)"""
+_READINGS = 4096
+"""wheel readings kept to interpolate a waiting fix's (minutes at 50 Hz; a fix waits one reading)"""
+
+
+class WheelScaleConfig(BaseModel):
+    """The wheels' distance scale, learned online from full fixes (:mod:`fusion.wheel_scale`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    sigma: float | None = Field(
+        0.05, gt=0, description="how far the wheels' true distance per reported metre may be "
+        "from `filter.motion.translation_scale`, σ (tyre wear, load, a wrong radius: a few per "
+        "cent); None: not learned, the configured scale is used as it is")
+    drift: float = Field(0.001, ge=0, description="how fast the scale may change, σ per √m "
+                         "driven between two observations")
+    baseline: float = Field(2.0, gt=0, description="m: the least distance between two full "
+                            "fixes that observe the scale; a few fixes' errors (cm) over it "
+                            "make one observation good to a per cent or two")
+    wheel_noise: float = Field(0.01, ge=0, description="m per √m: the wheels' random distance "
+                               "error (a rolling wheel on a floor: millimetres per metre), "
+                               "without their scale error")
+    max_turn_deg: float = Field(10.0, gt=0, lt=90, description="°: the path between the two "
+                                "fixes counts as straight when their headings, and the wheels' "
+                                "path about its chord, turn less than this")
+
+
+@dataclass(frozen=True, slots=True)
+class _Fix:
+    t: float
+    pose: NDArray[np.float64]
+    cov: NDArray[np.float64]
+
+
+@dataclass(slots=True)
+class _Anchor:
+    fix: _Fix
+    path: float  # the wheels' path length driven up to the fix
+    headings: list[float]  # of the full fixes from this one on
+
+
+class WheelScaleLearner:
+    """Raw wheel readings and accepted full fixes in; the wheels' scale out (``value``).
+
+    A fix waits for the first reading at or after its time, so that the wheels are interpolated
+    at it rather than extrapolated. A reading after motion the wheels missed (an odometry gap,
+    a jump) breaks the chain: the next fix starts a new pair."""
+
+    def __init__(self, config: WheelScaleConfig, prior: float) -> None:
+        """``prior``: the configured scale (``filter.motion.translation_scale``)."""
+        assert config.sigma is not None  # the localizer builds none when the scale is fixed
+        self.config = config
+        self.scale = WheelScale(config.sigma, config.drift, initial=prior)
+        self._wheel_variance = config.wheel_noise**2
+        self._cos_turn = math.cos(math.radians(config.max_turn_deg))
+        self._readings: deque[tuple[float, float]] = deque(maxlen=_READINGS)  # t, path
+        self._path = 0.0
+        self._last: tuple[float, float] | None = None
+        self._pending: deque[_Fix] = deque(maxlen=_PENDING)
+        self._anchor: _Anchor | None = None
+
+    @property
+    def value(self) -> float:
+        """The estimated true distance per metre the wheels report."""
+        return self.scale.value
+
+    def on_wheels(self, t: float, x: float, y: float, theta: float, broken: bool) -> None:
+        """A raw wheel reading (before any calibration); ``broken``: the wheels missed motion
+        before it. Waiting fixes up to ``t`` are then used."""
+        if broken:
+            self.forget()
+        elif self._last is not None:
+            self._path += math.hypot(x - self._last[0], y - self._last[1])
+        self._last = (x, y)
+        self._readings.append((t, self._path))
+        while self._pending and self._pending[0].t <= t:
+            self._observe(self._pending.popleft())
+
+    def on_fix(self, t: float, pose: NDArray[np.float64], cov: NDArray[np.float64]) -> None:
+        """A full fix the filter accepted, taken at ``t``."""
+        self._pending.append(_Fix(t, np.array(pose, dtype=float), np.array(cov, dtype=float)))
+
+    def forget(self) -> None:
+        """Start afresh: the pose jumped (a relocalization) or the wheels missed motion."""
+        self._readings.clear()
+        self._pending.clear()
+        self._anchor = None
+        self._path = 0.0
+        self._last = None
+
+    def _observe(self, fix: _Fix) -> None:
+        path = self._path_at(fix.t)
+        if path is None:
+            self._anchor = None
+            return
+        anchor = self._anchor
+        if anchor is None or len(anchor.headings) >= _HEADINGS:
+            self._anchor = _Anchor(fix, path, [float(fix.pose[2])])
+            return
+        anchor.headings.append(float(fix.pose[2]))
+        chord = fix.pose[:2] - anchor.fix.pose[:2]
+        length = float(math.hypot(*chord))
+        if length < self.config.baseline:
+            return  # not far enough yet
+        self._anchor = _Anchor(fix, path, [float(fix.pose[2])])
+        along = math.atan2(chord[1], chord[0])
+        # the heading from the chord, driving backwards folded onto forwards: |δ| ≤ 90°
+        off = np.abs(np.asarray(anchor.headings) - along + 0.5 * math.pi) % math.pi - 0.5 * math.pi
+        if off.max() > math.radians(self.config.max_turn_deg):
+            return  # not straight: its chord is no measure of its length; start again here
+        u = chord / length
+        measured = length / float(np.cos(off).mean())
+        driven = path - anchor.path
+        noise = (float(u @ (fix.cov[:2, :2] + anchor.fix.cov[:2, :2]) @ u)
+                 + self._wheel_variance * driven)
+        self.scale.update(driven, measured, noise)
+
+    def _path_at(self, t: float) -> float | None:
+        """The wheels' path length driven up to ``t``, interpolated between the readings
+        around it; None outside the readings kept."""
+        readings = self._readings
+        if not readings or t < readings[0][0] or t > readings[-1][0]:
+            return None
+        i = len(readings) - 1
+        while i > 0 and readings[i - 1][0] >= t:
+            i -= 1
+        b = readings[i]
+        a = readings[i - 1] if i > 0 else b
+        f = 0.0 if b[0] == a[0] else (t - a[0]) / (b[0] - a[0])
+        return a[1] + f * (b[1] - a[1])
