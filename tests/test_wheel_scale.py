@@ -18,11 +18,13 @@ CONFIG = WheelScaleConfig()
 
 def drive(learner: WheelScaleLearner, true_scale: float, rng: np.random.Generator,
           heading: float = 0.3, metres: float = 40.0, turn_per_metre: float = 0.0,
-          wheels_turn_per_metre: float = 0.0, fix_every: float = 0.5) -> None:
+          wheels_turn_per_metre: float = 0.0, fix_every: float = 0.5,
+          jitter: float = 0.0) -> None:
     """Drive ``metres`` from the map's origin at ``heading``, turning ``turn_per_metre``; the
     wheels at 50 Hz report 1/``true_scale`` of each step, in their own frame (turned by 1 rad
     from the map's) and turning ``wheels_turn_per_metre`` more than the robot does (wheels of
-    different radii); a full fix with ``FIX_SIGMA`` noise every ``fix_every`` m."""
+    different radii), each reading off by ``jitter`` (σ, m) in x and y; a full fix with
+    ``FIX_SIGMA`` noise every ``fix_every`` m."""
     speed, rate = 0.5, 50.0
     t, x, y, th = 0.0, 0.0, 0.0, heading
     wx, wy, wth = 0.0, 0.0, heading + 1.0
@@ -36,7 +38,8 @@ def drive(learner: WheelScaleLearner, true_scale: float, rng: np.random.Generato
         wth += (turn_per_metre + wheels_turn_per_metre) * step
         t += 1.0 / rate
         driven += step
-        learner.on_wheels(t, wx, wy, wth, broken=False)
+        shake = rng.normal(0.0, jitter, 2) if jitter else (0.0, 0.0)
+        learner.on_wheels(t, wx + shake[0], wy + shake[1], wth, broken=False)
         if driven >= next_fix:
             noise = rng.normal(0.0, FIX_SIGMA, 2)
             learner.on_fix(t - 0.01, np.array((x + noise[0], y + noise[1], th)), FIX_COV)
@@ -63,6 +66,15 @@ def test_wheels_that_report_a_straight_path_as_an_arc_still_find_it() -> None:
     drive(learner, 1.03, np.random.default_rng(3), wheels_turn_per_metre=math.radians(12.0))
     assert learner.scale.updates >= 15
     assert abs(learner.value - 1.03) < 0.005
+
+
+def test_the_readings_jitter_does_not_lengthen_the_path() -> None:
+    """Readings 1 cm apart, each off by 2 mm: summed reading by reading, their path would be
+    4 % longer than the wheels drove; measured in longer chords, the scale is still right."""
+    learner = WheelScaleLearner(CONFIG, prior=1.0)
+    drive(learner, 0.98, np.random.default_rng(4), jitter=0.002)
+    assert learner.scale.updates >= 15
+    assert abs(learner.value - 0.98) < 0.005
 
 
 def test_a_curved_path_teaches_nothing() -> None:
