@@ -24,10 +24,10 @@ v the fixes' noise along the chord plus the wheels' random noise over the path
 error this removes). The wheels' path length is used, not their chord: wheels whose radii
 differ report a straight path as an arc, whose chord is shorter, but not its length. The length
 is summed over chords of ``_SEGMENT``: summed reading by reading, the readings' own jitter
-(millimetres across the path between readings millimetres apart) would lengthen it by per cents. Each pair
-updates a scalar Kalman filter on s (:class:`fusion.motion.WheelScale`); consecutive pairs
-share no fix, so their noises are independent. The fixes need not be at the right place: a
-look-alike place gives the same chord.
+(millimetres across the path between readings millimetres apart) would lengthen it by per
+cents. Each pair updates a scalar Kalman filter on s (:class:`fusion.motion.WheelScale`) once
+the next pair agrees with it; consecutive pairs share no fix, so their noises are independent.
+The fixes need not be at the right place: a look-alike place gives the same chord.
 """
 
 from __future__ import annotations
@@ -109,6 +109,7 @@ class WheelScaleLearner:
         self._mark: tuple[float, float] | None = None  # where the current chord started
         self._pending: deque[_Fix] = deque(maxlen=_PENDING)
         self._anchor: _Anchor | None = None
+        self._waiting: tuple[float, float, float] | None = None  # a chord without a partner yet
 
     @property
     def value(self) -> float:
@@ -139,6 +140,7 @@ class WheelScaleLearner:
         self._readings.clear()
         self._pending.clear()
         self._anchor = None
+        self._waiting = None
         self._path = 0.0
         self._mark = None
 
@@ -167,6 +169,24 @@ class WheelScaleLearner:
         driven = path - anchor.path
         noise = (float(u @ (fix.cov[:2, :2] + anchor.fix.cov[:2, :2]) @ u)
                  + self._wheel_variance * driven)
+        self._corroborated(driven, measured, noise)
+
+    def _corroborated(self, driven: float, measured: float, noise: float) -> None:
+        """Update with a chord once the next chord agrees with it: the ratios m/w of the two
+        within the gate's χ²₁ quantile of their joint noise. A fix that is wrong by decimetres
+        while the filter's own uncertainty is wide enough to accept it (a room the map lacks)
+        makes one chord, or two neighbouring ones, disagree with everything else; taken alone,
+        the first such chord moved the estimate far enough that the right ones after it were
+        gated out. The chord that found no partner is dropped when the next disagrees."""
+        waiting, self._waiting = self._waiting, (driven, measured, noise)
+        if waiting is None:
+            return
+        w0, m0, n0 = waiting
+        gap = m0 / w0 - measured / driven
+        if gap * gap > self.scale.limit * (n0 / w0**2 + noise / driven**2):
+            return  # the newer chord waits for a partner in turn
+        self._waiting = None
+        self.scale.update(w0, m0, n0)
         self.scale.update(driven, measured, noise)
 
     def _path_at(self, t: float) -> float | None:

@@ -53,7 +53,7 @@ def test_full_fixes_along_a_straight_path_find_the_wheels_scale(true_scale, seed
     1 %: the estimate is within 1 % of the truth and its σ below the prior's fifth."""
     learner = WheelScaleLearner(CONFIG, prior=1.0)
     drive(learner, true_scale, np.random.default_rng(seed))
-    assert learner.scale.updates >= 15
+    assert learner.scale.updates >= 12
     assert abs(learner.value - true_scale) < 0.01
     assert math.sqrt(learner.scale.variance) < 0.2 * (CONFIG.sigma or 0.0)
 
@@ -101,13 +101,33 @@ def test_motion_the_wheels_missed_breaks_the_chord() -> None:
 
 def test_a_fix_waits_for_the_wheels_after_it() -> None:
     """A fix newer than the newest reading is used when the next reading brackets it: the
-    wheels are interpolated at its time, not taken from the reading before."""
+    wheels are interpolated at its time, not taken from the reading before. (Two chords that
+    agree: a chord is used once the next one corroborates it.)"""
     learner = WheelScaleLearner(CONFIG, prior=1.0)
     learner.on_wheels(0.0, 0.0, 0.0, 0.0, broken=False)
     learner.on_fix(0.0, np.zeros(3), FIX_COV)
     learner.on_wheels(4.0, 2.0, 0.0, 0.0, broken=False)
     learner.on_fix(5.0, np.array((2.5, 0.0, 0.0)), FIX_COV)  # the wheels: 2.5 m at 5 s
-    assert learner.scale.updates == 0  # waiting
     learner.on_wheels(6.0, 3.0, 0.0, 0.0, broken=False)
-    assert learner.scale.updates == 1
+    learner.on_fix(10.0, np.array((5.0, 0.0, 0.0)), FIX_COV)
+    assert learner.scale.updates == 0  # waiting for the wheels after 10 s
+    learner.on_wheels(11.0, 5.5, 0.0, 0.0, broken=False)
+    assert learner.scale.updates == 2
     assert learner.value == pytest.approx(1.0, abs=1e-6)  # 2.5 m measured for 2.5 m driven
+
+
+def test_a_chord_between_wrong_fixes_is_not_believed() -> None:
+    """The first chord's fix is 0.25 m off (a room the map lacks, the filter too unsure to
+    refuse it): 10 % too long, within the prior's 2σ. Alone it would move the estimate so far
+    that the right chords after it were gated out; no chord agrees with it, and the estimate
+    is the right chords'."""
+    learner = WheelScaleLearner(CONFIG, prior=1.0)
+    learner.on_wheels(0.0, 0.0, 0.0, 0.0, broken=False)
+    learner.on_fix(0.0, np.zeros(3), FIX_COV)
+    for k in range(1, 12):
+        learner.on_wheels(4.0 * k, 2.0 * k, 0.0, 0.0, broken=False)
+        wrong = 0.25 if k == 1 else 0.0
+        learner.on_fix(4.0 * k, np.array((0.97 * 2.0 * k + wrong, 0.0, 0.0)), FIX_COV)
+    learner.on_wheels(50.0, 25.0, 0.0, 0.0, broken=False)
+    assert learner.scale.updates == 4  # the four chords from 12 m on, each 4 m
+    assert learner.value == pytest.approx(0.97, abs=0.002)
