@@ -59,6 +59,9 @@ from houghloc.localize import clean_points, observe_lines
 from houghloc.matching import gate_threshold
 from houghloc.segment_map import SegmentMap
 
+MakeTracker = Callable[[NDArray[np.float64], NDArray[np.float64], float], PoseTracker]
+"""``(pose, cov, t)``: a filter whose estimate at time t is the pose, given the odometry since"""
+
 _RECENT = 10  # fits kept per hypothesis, for the verdict's recent mean
 
 
@@ -199,11 +202,12 @@ class HypothesisBank:
     """The hypotheses proposed by global matches, followed until one is the pose."""
 
     def __init__(self, map: SegmentMap, config: HypothesisConfig,
-                 make_tracker: Callable[[NDArray[np.float64], NDArray[np.float64]], PoseTracker],
+                 make_tracker: MakeTracker,
                  fit: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
                  shares: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
                  ) -> None:
-        """``make_tracker(pose, cov)``: a filter at a pose; ``fit(poses, points)``: the fraction
+        """``make_tracker(pose, cov, t)``: a filter whose estimate at time t is the pose, with
+        the odometry since; ``fit(poses, points)``: the fraction
         of the points (robot frame) on walls at each of the P×3 poses, what the verdict compares
         with tracking's; ``shares(poses, points)``: P×3, the shares of the points on a wall seen
         directly, through a wall and neither, what the weights follow
@@ -256,18 +260,32 @@ class HypothesisBank:
             pose, cov = np.asarray(pose, float), np.asarray(cov, float)
             if any(self._same_pose(pose, cov, h) for h in followed):
                 continue
-            tracker = self._make_tracker(pose, cov)
-            tracker.on_odometry(t, *odom)
+            tracker = self._make_tracker(pose, cov, t)
             self.hypotheses.append(Hypothesis(tracker, scale * max(score * prior, 1e-6), origin))
         if self._last_update is None:
             self._last_update = np.asarray(odom, float).copy()
         self._merge()
         self._prune()
 
+    def on_odometry(self, t: float, x: float, y: float, theta: float,
+                    unmeasured: float = 0.0) -> None:
+        """An odometry reading, as the localizer's filter took it: every hypothesis's filter
+        takes it too, so that each predicts with the same motion at the same times."""
+        for h in self.hypotheses:
+            h.tracker.on_odometry(t, x, y, theta, unmeasured)
+
+    def correct_odometry(self, t: float, pose: NDArray[np.float64], since: float,
+                         step_cov: NDArray[np.float64]) -> None:
+        """A corrected odometry pose the localizer's filter took (scan odometry): the same for
+        every hypothesis's filter (:meth:`fusion.tracker.PoseTracker.correct_odometry`)."""
+        for h in self.hypotheses:
+            h.tracker.correct_odometry(t, pose, since, step_cov)
+
     def step(self, t: float, odom: NDArray[np.float64], points: NDArray[np.float64],
              hough: HoughConfig, least_fit: float | None) -> BankVerdict:
-        """One scan: predict each hypothesis to ``t`` with the odometry, fix it with the scan's
-        lines, weigh it by the scan's fit there; merge, prune, and take the leader when its
+        """One scan: each hypothesis's filter (its odometry came as the localizer's did, see
+        :meth:`on_odometry`) is fixed at ``t`` with the scan's lines and weighed by the scan's
+        fit there; merge, prune, and take the leader when its
         weight and its fits allow (``least_fit``: the least a right pose fits, if known)."""
         if not self.hypotheses or len(points) == 0:
             return BankVerdict()
@@ -275,8 +293,7 @@ class HypothesisBank:
         # the scan's lines do not depend on the pose they are matched from: extracted once
         observed = observe_lines(points, hough) if len(points) >= hough.peak_min_votes else None
         for h in self.hypotheses:
-            h.tracker.on_odometry(t, *odom)
-            guess, guess_cov = h.tracker.pose, h.tracker.cov
+            guess, guess_cov = h.tracker.pose_at(t) or (h.tracker.pose, h.tracker.cov)
             fix = localize_scan(points, self.map, guess, hough, pose_cov=guess_cov,
                                 observed=observed)
             if fix.rank > 0 and not fix.ambiguous:
@@ -310,7 +327,6 @@ class HypothesisBank:
             return BankVerdict()
         log_l = []
         for h in self.hypotheses:
-            h.tracker.on_odometry(t, *odom)
             x, y, theta = h.pose
             gap = wrap_scalar(bearing - (math.atan2(position[1] - y, position[0] - x) - theta))
             log_l.append(-0.5 * (gap / sigma) ** 2)

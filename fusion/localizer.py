@@ -176,11 +176,11 @@ class Localizer:
             self.manager.start_lost(0.0, "no initial pose: global localization")
             self._start_reason = "no initial pose: global localization"
 
-    def _tracker_at(self, pose: NDArray[np.float64], cov: NDArray[np.float64]) -> PoseTracker:
-        """A filter with this localizer's settings at a pose (a followed hypothesis's)."""
-        fc = self.config.filter
-        return PoseTracker(pose, cov, fc.motion, fc.history_seconds, fc.gate_probability,
-                           fc.delayed_updates)
+    def _tracker_at(self, pose: NDArray[np.float64], cov: NDArray[np.float64],
+                    t: float) -> PoseTracker:
+        """A filter with this localizer's settings and odometry whose estimate at ``t`` is the
+        pose (a followed hypothesis's)."""
+        return self.tracker.branch(pose, cov, t)
 
     def _check_initial_pose(self, pose: NDArray[np.float64]) -> None:
         """A ValueError for a pose that is no pose, or so far from the map that no sensor of
@@ -266,6 +266,7 @@ class Localizer:
             x, y, theta = self.scan_odometry.on_wheels(x, y, theta, unmeasured, t)
         jumps = self.tracker.counts.odometry_jumps
         self.tracker.on_odometry(t, x, y, theta, unmeasured)
+        self.manager.on_odometry(t, x, y, theta, unmeasured)
         if learner is not None and self.tracker.counts.odometry_jumps > jumps:
             learner.forget()  # the wheels' path across a jump is no chord of the robot's
         self.logger.log_odometry(t, (x, y, theta))
@@ -345,7 +346,7 @@ class Localizer:
             self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
                                            + perf_counter() - t2)
             if (decision.reset_pose is not None and decision.reset_cov is not None
-                    and self.tracker.reset(decision.reset_pose, decision.reset_cov)):
+                    and self.tracker.reset(decision.reset_pose, decision.reset_cov, t)):
                 status, outcome, along, by_points = ScanStatus.RE_SEARCHED, None, None, None
                 self._forget_chord()
         estimate = self._finish(t, status, fix, outcome, sensor, points, along=along,
@@ -372,6 +373,8 @@ class Localizer:
         if correction is not None:
             if self.tracker.correct_odometry(t, correction.pose, correction.since,
                                              correction.step_cov):
+                self.manager.correct_odometry(t, correction.pose, correction.since,
+                                              correction.step_cov)
                 scan_odometry.commit(correction)
                 self.logger.log_odometry(t, correction.pose)  # the odometry path shows it
             else:
@@ -448,7 +451,7 @@ class Localizer:
             return
         decision = self.manager.landmark_step(t, odom, position, bearing, label)
         if decision.reset_pose is not None and decision.reset_cov is not None:
-            self.tracker.reset(decision.reset_pose, decision.reset_cov)
+            self.tracker.reset(decision.reset_pose, decision.reset_cov, t)
 
     def _global_step(self, t: float, points: NDArray, sensor: str) -> Estimate:
         """Strategy (ii): accumulate this view; the manager may find the pose and re-initialise
@@ -462,7 +465,7 @@ class Localizer:
         decision = self.manager.collecting_step(t, odom, points, kinds, self._sensor(sensor).hough)
         self.stats.seconds["global"] = self.stats.seconds.get("global", 0.0) + perf_counter() - t0
         if decision.reset_pose is not None and decision.reset_cov is not None:
-            self.tracker.reset(decision.reset_pose, decision.reset_cov)
+            self.tracker.reset(decision.reset_pose, decision.reset_cov, t)
             return self._finish(t, ScanStatus.RELOCALIZED, None, None, sensor, points)
         leading = self.manager.leading_hypothesis
         return self._finish(t, ScanStatus.of_state(self.manager.state), None, None, sensor, points,

@@ -125,6 +125,7 @@ class PoseTracker:
         self.delayed_updates = delayed_updates
         self.counts = TrackerCounts()
         x, p = _checked_state(initial_pose, initial_cov)
+        self._gate_prob = gate_prob
         self._ekf = PoseEKF(x, p, gate_prob)  # one engine, reused for every step
         self._x, self._p = x, p  # the estimate while no odometry has arrived
         self._nodes: deque[_Node] = deque()
@@ -132,6 +133,9 @@ class PoseTracker:
         self._trim_length = 0  # trim when the history has this many nodes
         self._held: tuple[float, float] | None = None  # (t, until): see :meth:`hold`
         self._reading_since = -math.inf  # when the odometry first gave its newest reading
+        # after a reset later than the newest reading: that reading (t, odometry). The oldest
+        # node's odometry is then unknown until a reading after it brackets it with this one
+        self._before: tuple[float, NDArray[np.float64]] | None = None
 
     @classmethod
     def from_config(cls, config: FilterConfig, initial_pose: ArrayLike,
@@ -161,6 +165,8 @@ class PoseTracker:
     def odometry_time(self) -> float | None:
         """Time of the newest odometry reading (provisional nodes after it excluded); None
         before the first one. An estimate later than this assumes no motion since."""
+        if self._before is not None:
+            return self._before[0]
         return self._nodes[-1 - self._tail].t if self._nodes else None
 
     def pose_at(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -213,6 +219,8 @@ class PoseTracker:
             self._nodes.append(_Node(t, odom, self._x, self._p, _ZERO3, _ZERO33))
             self._reading_since = t
             return
+        if self._before is not None and not self._bracket(t, odom):
+            return
         lo_index = len(self._nodes) - 1 - self._tail
         lo = self._nodes[lo_index]
         if t < lo.t:
@@ -242,6 +250,28 @@ class PoseTracker:
             self._absorb_provisional(lo_index, t, odom, dt, jump, unmeasured)
         self._trim()
 
+    def _bracket(self, t: float, odom: NDArray[np.float64]) -> bool:
+        """After a reset later than the newest reading: a reading after the reset's time gives
+        the oldest node its odometry, interpolated between the reading before and this one, and
+        is then used as any other (True); one before it only replaces the reading before
+        (False: nothing to predict yet)."""
+        assert self._before is not None
+        t_before, odom_before = self._before
+        if t < t_before:
+            self.counts.odometry_backwards += 1
+            return False
+        first = self._nodes[0]
+        if t <= first.t:
+            self._before = (t, odom)
+            if odom.tolist() != odom_before.tolist():
+                self._reading_since = t
+            return False
+        self._before = None
+        span = increment(odom_before, odom)
+        if not self.motion.is_jump(span, t - t_before):  # a jump happens at its end
+            first.odom = interpolate(odom_before, odom, (first.t - t_before) / (t - t_before))
+        return True
+
     def correct_odometry(self, t: float, pose: ArrayLike, since: float | None = None,
                          step_cov: ArrayLike | None = None) -> bool:
         """A corrected odometry pose at t (scan matching measured the motion the wheels
@@ -255,7 +285,8 @@ class PoseTracker:
         model's noise). False, and nothing changed, when t is older than the newest reading,
         measurements wait after it, or the pose is not finite."""
         odom = np.array(pose, dtype=float).reshape(3)
-        if not (self._nodes and self._tail == 0 and np.isfinite(odom).all()):
+        if not (self._nodes and self._tail == 0 and self._before is None
+                and np.isfinite(odom).all()):
             return False
         nodes = self._nodes
         newest = nodes[-1]
@@ -400,11 +431,13 @@ class PoseTracker:
         to a fraction of one. ``until`` bounds the history kept when no scan comes."""
         self._held = (t, until)
 
-    def reset(self, pose: ArrayLike, cov: ArrayLike) -> bool:
-        """Re-initialise (global relocalisation): the estimate at the newest odometry time
-        becomes (pose, cov); the history before it is forgotten, so older measurements are
-        dropped. Counters are kept. An invalid pose or covariance is refused (counted, False).
-        """
+    def reset(self, pose: ArrayLike, cov: ArrayLike, t: float | None = None) -> bool:
+        """Re-initialise (a relocalisation): the estimate at time ``t`` becomes (pose, cov);
+        measurements before it are forgotten, the odometry after it is kept and re-filtered
+        from there. Without ``t``, or older than the history: at the newest odometry reading.
+        Later than the newest reading (the odometry is late): the reset's node waits for the
+        next reading to interpolate its odometry, so motion the pose already has is not added
+        again. Counters are kept. An invalid pose or covariance is refused (counted, False)."""
         try:
             x, p = _checked_state(pose, cov)
         except ValueError as error:
@@ -413,11 +446,55 @@ class PoseTracker:
         if not self._nodes:
             self._x, self._p = x, p
             return True
-        lo = self._nodes[len(self._nodes) - 1 - self._tail]
-        self._nodes = deque([_Node(lo.t, lo.odom, x, p, _ZERO3, _ZERO33)])
+        self._nodes, self._before = self._restarted(x, p, t)
         self._trim_length = 0
         self._tail = 0
         return True
+
+    def branch(self, pose: ArrayLike, cov: ArrayLike, t: float) -> PoseTracker:
+        """A new filter with this one's settings and odometry, whose estimate at time ``t`` is
+        (pose, cov) (a followed hypothesis, as :meth:`reset` would place it)."""
+        other = PoseTracker(self._x, self._p, self.motion.config, self.history_seconds,
+                            self._gate_prob, self.delayed_updates)
+        if self._nodes:
+            x, p = _checked_state(pose, cov)
+            other._nodes, other._before = self._restarted(x, p, t)
+            other._reading_since = self._reading_since
+        else:
+            other._x, other._p = _checked_state(pose, cov)
+        return other
+
+    def _restarted(self, x: NDArray[np.float64], p: NDArray[np.float64], t: float | None
+                   ) -> tuple[deque[_Node], tuple[float, NDArray[np.float64]] | None]:
+        """The history after a reset to (x, P) at t (see :meth:`reset`): the new nodes, and the
+        reading before them when t is later than every reading."""
+        nodes = self._nodes
+        newest = len(nodes) - 1 - self._tail
+        if self._before is not None:  # still waiting for a reading after the oldest node
+            reading = self._before
+        else:
+            reading = (nodes[newest].t, nodes[newest].odom)
+        if t is None or not math.isfinite(t) or t < nodes[self._oldest()].t:
+            t = reading[0]
+        if t >= reading[0]:
+            first = _Node(t, reading[1], x, p, _ZERO3, _ZERO33)
+            return deque([first]), (None if t == reading[0] else reading)
+        j = bisect_right(nodes, t, key=_node_time) - 1
+        if nodes[j].t == t:
+            odom = nodes[j].odom
+        else:
+            odom = self._split(nodes[j], nodes[j + 1], t)[0]
+        kept: deque[_Node] = deque([_Node(t, odom, x, p, _ZERO3, _ZERO33)])
+        prev = kept[0]
+        for node in list(nodes)[j + 1:newest + 1]:  # the readings after t; measurements dropped
+            if node.jump:
+                step, q = node.step, node.step_q
+            else:
+                step = increment(prev.odom, node.odom)
+                q = self.motion.noise(step)
+            kept.append(_Node(node.t, node.odom, None, None, step, q, node.jump))
+            prev = kept[-1]
+        return kept, None
 
     # ------------------------------------------------------------------------------ helpers
     def _split(

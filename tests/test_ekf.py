@@ -462,6 +462,50 @@ def test_reset_replaces_the_estimate_and_forgets_the_past():
     np.testing.assert_allclose(tracker.pose, compose([5.0, 5.0, 1.0], [0.01, 0, 0]), atol=1e-12)
 
 
+def test_a_reset_while_the_odometry_is_late_does_not_count_its_motion_twice():
+    """The robot turns at 1 rad/s; the odometry stops for 3 s. A relocalization at 2.5 s into
+    the gap sets the pose there, turned by the 2.5 rad the robot made. When the odometry comes
+    back at 3 s with the whole gap's turn, only the half second after the reset is added
+    (before: all 3 rad on top of the reset pose, 2.5 rad off)."""
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+    t, odom = drive(tracker, (0.0, 1.0), seconds=1.0)
+    assert tracker.reset([1.0, 2.0, 1.0 + 2.5], P0 * 0.01, t + 2.5)
+    assert tracker.odometry_time == t  # the newest reading is still the one before the gap
+    tracker.on_odometry(t + 3.0, *compose(odom, [0.0, 0.0, 3.0]))
+    assert wrap_angle(tracker.pose[2] - (1.0 + 3.0)) == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(tracker.pose[:2], [1.0, 2.0], atol=1e-9)
+
+
+def test_a_reset_in_the_past_keeps_the_odometry_since():
+    """A relocalization found on a scan 0.4 s older than the newest reading sets the pose at
+    the scan's time: the 0.2 m driven since are added (before: lost)."""
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+    t, _ = drive(tracker, (0.5, 0.0), seconds=1.0)
+    tracker.apply(t - 0.1, [0.45, 0.0, 0.0], R_SMALL)  # a measurement after it is forgotten
+    assert tracker.reset([5.0, 5.0, math.pi / 2], P0 * 0.01, t - 0.4)
+    np.testing.assert_allclose(tracker.pose, [5.0, 5.2, math.pi / 2], atol=1e-9)
+    assert tracker.apply(t - 0.5, [5.0, 5.0, 1.0], R_SMALL).status == "dropped"
+
+
+def test_a_branch_is_the_filter_a_reset_would_give():
+    """A followed hypothesis branched off the filter at a time predicts as the filter reset to
+    it there would, reading for reading, and leaves the filter as it was."""
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+    t, odom = drive(tracker, (0.5, 0.3), seconds=1.0)
+    before = tracker.pose
+    branch = tracker.branch([3.0, 1.0, 0.5], P0, t - 0.3)
+    reset = PoseTracker([0.0, 0.0, 0.0], P0)
+    drive(reset, (0.5, 0.3), seconds=1.0)
+    reset.reset([3.0, 1.0, 0.5], P0, t - 0.3)
+    np.testing.assert_array_equal(tracker.pose, before)
+    for k in range(1, 6):
+        reading = compose(odom, [0.01 * k, 0.0, 0.006 * k])
+        branch.on_odometry(t + 0.02 * k, *reading)
+        reset.on_odometry(t + 0.02 * k, *reading)
+        np.testing.assert_allclose(branch.pose, reset.pose, atol=1e-12)
+        np.testing.assert_allclose(branch.cov, reset.cov, atol=1e-12)
+
+
 # ------------------------------------------------------------------------------- consistency
 def test_monte_carlo_nees_is_inside_the_95_percent_band():
     """Odometry reports a nominal increment δ; the true motion is δ + w, w ~ N(0, Q(δ)) — the

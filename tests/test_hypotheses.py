@@ -36,24 +36,33 @@ def bank(office, fits, config: HypothesisConfig | None = None, through=None) -> 
     fraction on walls, all seen directly), and see ``through(poses)`` of their points through
     walls (none if not given)."""
     fc = FilterConfig()
+    # the localizer's filter: it takes the odometry, and each followed pose branches off it
+    odometry = PoseTracker(np.zeros(3), np.eye(3), fc.motion, fc.history_seconds,
+                           fc.gate_probability)
+    odometry.on_odometry(0.0, 0.0, 0.0, 0.0)
 
-    def make_tracker(pose, cov):
-        return PoseTracker(pose, cov, fc.motion, fc.history_seconds, fc.gate_probability)
+    def make_tracker(pose, cov, t):
+        return odometry.branch(pose, cov, t)
 
     def shares(poses, points):
         hit = np.asarray(fits(poses), float)
         seen_through = np.zeros(len(hit)) if through is None else np.asarray(through(poses))
         return np.column_stack((hit, seen_through, 1.0 - hit - seen_through))
 
-    return HypothesisBank(office, config or HypothesisConfig(), make_tracker,
-                          lambda poses, points: np.asarray(fits(poses), float), shares)
+    b = HypothesisBank(office, config or HypothesisConfig(), make_tracker,
+                       lambda poses, points: np.asarray(fits(poses), float), shares)
+    b.odometry = odometry  # type: ignore[attr-defined]  # weigh() drives it
+    return b
 
 
 def weigh(b: HypothesisBank, odom=(STEP, 0.0, 0.0), least_fit: float | None = None):
     """One scan of a few points that match no map line (the filters keep their poses), taken
     at 1 m/s along x (a step in no time would be a jump the filters refuse)."""
     points = np.array([[0.3, 0.0], [0.3, 0.01], [0.31, 0.0]])
-    return b.step(1.0 + float(odom[0]), np.array(odom, float), points, HoughConfig(), least_fit)
+    t = 1.0 + float(odom[0])
+    b.odometry.on_odometry(t, *odom)  # type: ignore[attr-defined]
+    b.on_odometry(t, *odom)
+    return b.step(t, np.array(odom, float), points, HoughConfig(), least_fit)
 
 
 @settings(max_examples=50, deadline=None)

@@ -41,8 +41,8 @@ from fusion.ambiguity.fit import ScanFit
 from fusion.ambiguity.local_search import LocalSearch
 from fusion.ambiguity.relocalization import Decision, Relocalization, reinit_floor
 from fusion.ambiguity.tracking import Belief, TrackingWatch, Verdict
+from fusion.hypotheses import MakeTracker
 from fusion.status import ScanStatus, State
-from fusion.tracker import PoseTracker
 from fusion.visualize import Logger
 from houghloc import HoughConfig, ScanCorrection, SegmentMap
 from houghloc.geometry import wrap_scalar
@@ -79,7 +79,7 @@ class AmbiguityManager:
     logger: Logger | None = None
     # a filter at a pose with a covariance, for each followed hypothesis (the Localizer's own
     # settings); None: hypotheses are not followed by filters
-    make_tracker: Callable[[NDArray, NDArray], PoseTracker] | None = None
+    make_tracker: MakeTracker | None = None
 
     def __post_init__(self) -> None:
         self.fit = ScanFit(self.map, self.config, self.counts)
@@ -97,6 +97,19 @@ class AmbiguityManager:
 
     def start_lost(self, t: float, reason: str) -> None:
         self._go(t, State.LOST, reason)
+
+    def on_odometry(self, t: float, x: float, y: float, theta: float,
+                    unmeasured: float = 0.0) -> None:
+        """An odometry reading the localizer's filter took: the followed poses take it too."""
+        bank = self.relocalization.bank
+        if bank is not None:
+            bank.on_odometry(t, x, y, theta, unmeasured)
+
+    def correct_odometry(self, t: float, pose: NDArray, since: float, step_cov: NDArray) -> None:
+        """A corrected odometry pose the localizer's filter took: the followed poses take it."""
+        bank = self.relocalization.bank
+        if bank is not None:
+            bank.correct_odometry(t, pose, since, step_cov)
 
     # ------------------------------------------------------------------ tracking
     def judge(self, guess: NDArray, fix: ScanCorrection, points: NDArray,

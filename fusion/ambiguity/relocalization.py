@@ -22,9 +22,8 @@ from fusion.ambiguity.fit import ScanFit
 from fusion.ambiguity.ties import Ties, break_with_prior
 from fusion.ambiguity.tracking import Belief
 from fusion.ambiguity.views import Views
-from fusion.hypotheses import BankVerdict, HypothesisBank
+from fusion.hypotheses import BankVerdict, HypothesisBank, MakeTracker
 from fusion.status import State
-from fusion.tracker import PoseTracker
 from fusion.visualize import Logger
 from houghloc import GlobalResult, HoughConfig, Hypothesis, SegmentMap, observe_lines
 from houghloc.geometry import compose, relative
@@ -64,7 +63,7 @@ class Relocalization:
 
     def __init__(self, map: SegmentMap, config: AmbiguityConfig, fit: ScanFit, belief: Belief,
                  counts: Counter, go: GoTo, logger: Logger | None = None,
-                 make_tracker: Callable[[NDArray, NDArray], PoseTracker] | None = None) -> None:
+                 make_tracker: MakeTracker | None = None) -> None:
         self.map = map
         self.config = config
         self.fit = fit
