@@ -26,7 +26,6 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import BaseModel, ConfigDict, Field
-from scipy.stats import chi2
 
 from houghloc.geometry import Pose, compose, relative, wrap_scalar
 
@@ -108,47 +107,6 @@ class OdometryCalibration:
         self._raw = raw
         x, y, theta = self._calibrated.tolist()
         return x, y, theta
-
-
-class WheelScale:
-    """The wheels' distance scale s, estimated online from measured increments: a scalar Kalman
-    filter on the true distance per wheel-reported metre.
-
-    State s ~ N(ŝ, P), from N(``initial``, ``prior_sigma``²). Between updates s is a random walk
-    over the distance driven d (the tyres wear, the load changes): P ← P + ``drift``²·d. An
-    increment whose wheels drove w metres along the unit direction u, and which another sensor
-    measured as the translation m with covariance M, observes
-
-        z = uᵀ m = s·w + v,    v ~ N(0, R),  R = uᵀ M u + r_w
-
-    (r_w: the wheels' own random noise along u), and updates, as in the Kalman filter,
-        K = P w / (w² P + R),   ŝ ← ŝ + K (z − ŝ w),   P ← (1 − K w) P.
-    An observation beyond the χ²₁ ``gate`` quantile of its innovation is a slip or a misreport,
-    not the scale, and is skipped."""
-
-    def __init__(self, prior_sigma: float = 0.1, drift: float = 0.001,
-                 gate: float = 0.99, initial: float = 1.0) -> None:
-        self.value = initial
-        self.variance = prior_sigma**2
-        self.drift = drift
-        self.limit = float(chi2.ppf(gate, 1))
-        self.updates = 0
-
-    def update(self, wheel_distance: float, measured: float, noise: float) -> bool:
-        """One increment: the wheels drove ``wheel_distance`` m (unscaled, > 0), another sensor
-        measured ``measured`` m along the same direction with variance ``noise``. False when
-        the innovation is gated out (the estimate only drifts)."""
-        w = wheel_distance
-        self.variance += self.drift**2 * w
-        innovation = measured - self.value * w
-        s = w * w * self.variance + noise
-        if innovation * innovation > self.limit * s:
-            return False
-        gain = self.variance * w / s
-        self.value += gain * innovation
-        self.variance *= 1.0 - gain * w
-        self.updates += 1
-        return True
 
 
 def increment(odom_prev: ArrayLike, odom_next: ArrayLike) -> NDArray[np.float64]:

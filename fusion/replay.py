@@ -351,8 +351,8 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
     learner = localizer.wheel_scale
     if learner is not None:
         doc["wheel_scale"] = {"estimate": round(learner.value, 6),
-                              "sigma": round(math.sqrt(learner.scale.variance), 6),
-                              "updates": learner.scale.updates}
+                              "sigma": round(learner.sigma, 6),
+                              "updates": learner.updates}
     so = localizer.scan_odometry
     if so is not None:
         doc["scan_odometry"] = {"matched": so.matched, "unmatched": so.unmatched}

@@ -25,9 +25,13 @@ error this removes). The wheels' path length is used, not their chord: wheels wh
 differ report a straight path as an arc, whose chord is shorter, but not its length. The length
 is summed over chords of ``_SEGMENT``: summed reading by reading, the readings' own jitter
 (millimetres across the path between readings millimetres apart) would lengthen it by per
-cents. Each pair updates a scalar Kalman filter on s (:class:`fusion.motion.WheelScale`) once
-the next pair agrees with it; consecutive pairs share no fix, so their noises are independent.
-The fixes need not be at the right place: a look-alike place gives the same chord.
+cents. A chord counts once the next agrees with it (:meth:`WheelScaleLearner._corroborated`),
+and the scale is the weighted median of the last ``_CHORDS`` chords' ratios m/w, weighted by
+w²/σ_v², with the prior among them: a median, not a Kalman filter's mean, because a run of
+chords between fixes wrong the same way (a stretch where the map is distorted) moved a filter's
+estimate so far that its gate then refused every right chord after it. Consecutive chords share
+no fix, so their noises are independent. The fixes need not be at the right place: a look-alike
+place gives the same chord.
 """
 
 from __future__ import annotations
@@ -39,8 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from pydantic import BaseModel, ConfigDict, Field
-
-from fusion.motion import WheelScale
+from scipy.stats import chi2
 
 _PENDING = 16
 """fixes waiting for the wheel reading after them (a few scans' worth: readings come at 5–100 Hz)"""
@@ -48,6 +51,11 @@ _SEGMENT = 0.25
 """m: the wheels' path is measured in chords this long: far longer than their readings' jitter,
 so it adds nothing, and short enough that an arc of wheels whose radii differ by 10 % (14° per
 metre on a 0.4 m base) is 0.02 % longer than its chords"""
+_CHORDS = 64
+"""chords the scale is the median of: the last 130 m or more of straight path (a tyre's wear
+changes its radius far more slowly)"""
+_AGREE = float(chi2.ppf(0.99, 1))
+"""two chords agree when their ratios differ by less than this quantile of χ²₁ of their noise"""
 _HEADINGS = 1024
 """full fixes between two ends of a chord at most (a robot that stands still starts afresh)"""
 _READINGS = 4096
@@ -63,8 +71,6 @@ class WheelScaleConfig(BaseModel):
         0.05, gt=0, description="how far the wheels' true distance per reported metre may be "
         "from `filter.motion.translation_scale`, σ (tyre wear, load, a wrong radius: a few per "
         "cent); None: not learned, the configured scale is used as it is")
-    drift: float = Field(0.001, ge=0, description="how fast the scale may change, σ per √m "
-                         "driven between two observations")
     baseline: float = Field(2.0, gt=0, description="m: the least distance between two full "
                             "fixes that observe the scale; a few fixes' errors (cm) over it "
                             "make one observation good to a per cent or two")
@@ -101,7 +107,12 @@ class WheelScaleLearner:
         """``prior``: the configured scale (``filter.motion.translation_scale``)."""
         assert config.sigma is not None  # the localizer builds none when the scale is fixed
         self.config = config
-        self.scale = WheelScale(config.sigma, config.drift, initial=prior)
+        self._prior = (prior, 1.0 / config.sigma**2)  # as a ratio and its weight
+        self._chords: deque[tuple[float, float]] = deque(maxlen=_CHORDS)  # ratio, weight
+        self.value = prior
+        """the estimated true distance per metre the wheels report"""
+        self.updates = 0
+        """chords used"""
         self._wheel_variance = config.wheel_noise**2
         self._cos_turn = math.cos(math.radians(config.max_turn_deg))
         self._readings: deque[tuple[float, float]] = deque(maxlen=_READINGS)  # t, path
@@ -112,9 +123,10 @@ class WheelScaleLearner:
         self._waiting: tuple[float, float, float] | None = None  # a chord without a partner yet
 
     @property
-    def value(self) -> float:
-        """The estimated true distance per metre the wheels report."""
-        return self.scale.value
+    def sigma(self) -> float:
+        """The estimate's standard error: a weighted median's, 1.25/√(Σ weights)."""
+        total = self._prior[1] + sum(weight for _, weight in self._chords)
+        return 1.2533 / math.sqrt(total)
 
     def on_wheels(self, t: float, x: float, y: float, theta: float, broken: bool) -> None:
         """A raw wheel reading (before any calibration); ``broken``: the wheels missed motion
@@ -172,22 +184,23 @@ class WheelScaleLearner:
         self._corroborated(driven, measured, noise)
 
     def _corroborated(self, driven: float, measured: float, noise: float) -> None:
-        """Update with a chord once the next chord agrees with it: the ratios m/w of the two
-        within the gate's χ²₁ quantile of their joint noise. A fix that is wrong by decimetres
-        while the filter's own uncertainty is wide enough to accept it (a room the map lacks)
-        makes one chord, or two neighbouring ones, disagree with everything else; taken alone,
-        the first such chord moved the estimate far enough that the right ones after it were
-        gated out. The chord that found no partner is dropped when the next disagrees."""
+        """Use a chord once the next chord agrees with it (their ratios m/w within ``_AGREE`` of
+        their joint noise), then both. A fix that is wrong by decimetres while the filter's own
+        uncertainty is wide enough to accept it (a room the map lacks) makes one chord, or two
+        neighbouring ones, disagree with everything else, and the first chords of a run decide
+        the median alone. The chord that found no partner is dropped when the next disagrees."""
         waiting, self._waiting = self._waiting, (driven, measured, noise)
         if waiting is None:
             return
         w0, m0, n0 = waiting
         gap = m0 / w0 - measured / driven
-        if gap * gap > self.scale.limit * (n0 / w0**2 + noise / driven**2):
+        if gap * gap > _AGREE * (n0 / w0**2 + noise / driven**2):
             return  # the newer chord waits for a partner in turn
         self._waiting = None
-        self.scale.update(w0, m0, n0)
-        self.scale.update(driven, measured, noise)
+        self._chords.append((m0 / w0, w0 * w0 / n0))
+        self._chords.append((measured / driven, driven * driven / noise))
+        self.updates += 2
+        self.value = _weighted_median([self._prior, *self._chords])
 
     def _path_at(self, t: float) -> float | None:
         """The wheels' path length driven up to ``t``, interpolated between the readings
@@ -202,3 +215,15 @@ class WheelScaleLearner:
         a = readings[i - 1] if i > 0 else b
         f = 0.0 if b[0] == a[0] else (t - a[0]) / (b[0] - a[0])
         return a[1] + f * (b[1] - a[1])
+
+
+def _weighted_median(items: list[tuple[float, float]]) -> float:
+    """The value below and above which lie at most half the weight of (value, weight) items."""
+    ordered = sorted(items)
+    half = 0.5 * sum(weight for _, weight in ordered)
+    below = 0.0
+    for value, weight in ordered:
+        below += weight
+        if below >= half:
+            return value
+    return ordered[-1][0]
