@@ -27,11 +27,11 @@ is summed over chords of ``_SEGMENT``: summed reading by reading, the readings' 
 (millimetres across the path between readings millimetres apart) would lengthen it by per
 cents. A chord counts once the next agrees with it (:meth:`WheelScaleLearner._corroborated`),
 and the scale is the weighted median of the last ``_CHORDS`` chords' ratios m/w, weighted by
-w²/σ_v², with the prior among them: a median, not a Kalman filter's mean, because a run of
-chords between fixes wrong the same way (a stretch where the map is distorted) moved a filter's
-estimate so far that its gate then refused every right chord after it. Consecutive chords share
-no fix, so their noises are independent. The fixes need not be at the right place: a look-alike
-place gives the same chord.
+w²/σ_v², with the prior among them, once ``_LEAST_PAIRS`` pairs agreed: a median, not a Kalman
+filter's mean, because a run of chords between fixes wrong the same way (a stretch where the map
+is distorted) moved a filter's estimate so far that its gate then refused every right chord
+after it. Consecutive chords share no fix, so their noises are independent. The fixes need not
+be at the right place: a look-alike place gives the same chord.
 """
 
 from __future__ import annotations
@@ -54,6 +54,9 @@ metre on a 0.4 m base) is 0.02 % longer than its chords"""
 _CHORDS = 64
 """chords the scale is the median of: the last 130 m or more of straight path (a tyre's wear
 changes its radius far more slowly)"""
+_LEAST_PAIRS = 3
+"""pairs of agreeing chords before the scale leaves the prior: with three, one pair wrong the
+same way (a stretch where the map is distorted) is outvoted by the other two"""
 _AGREE = float(chi2.ppf(0.99, 1))
 """two chords agree when their ratios differ by less than this quantile of χ²₁ of their noise"""
 _HEADINGS = 1024
@@ -200,7 +203,8 @@ class WheelScaleLearner:
         self._chords.append((m0 / w0, w0 * w0 / n0))
         self._chords.append((measured / driven, driven * driven / noise))
         self.updates += 2
-        self.value = _weighted_median([self._prior, *self._chords])
+        if self.updates >= 2 * _LEAST_PAIRS:
+            self.value = _weighted_median([self._prior, *self._chords])
 
     def _path_at(self, t: float) -> float | None:
         """The wheels' path length driven up to ``t``, interpolated between the readings
