@@ -80,9 +80,10 @@ class WheelScaleConfig(BaseModel):
     wheel_noise: float = Field(0.01, ge=0, description="m per √m: the wheels' random distance "
                                "error (a rolling wheel on a floor: millimetres per metre), "
                                "without their scale error")
-    max_turn_deg: float = Field(10.0, gt=0, lt=90, description="°: the path between the two "
-                                "fixes counts as straight when their headings, and the wheels' "
-                                "path about its chord, turn less than this")
+    max_turn_deg: float = Field(10.0, gt=0, lt=90, description="°: the path between two fixes "
+                                "counts as straight when every full fix on it heads within this "
+                                "of their chord (its length is then within 1.5 % of the chord's, "
+                                "and is corrected by the headings)")
 
 
 @dataclass(frozen=True, slots=True)
