@@ -26,12 +26,13 @@ differ report a straight path as an arc, whose chord is shorter, but not its len
 is summed over chords of ``_SEGMENT``: summed reading by reading, the readings' own jitter
 (millimetres across the path between readings millimetres apart) would lengthen it by per
 cents. A chord counts once the next agrees with it (:meth:`WheelScaleLearner._corroborated`),
-and the scale is the weighted median of the last ``_CHORDS`` chords' ratios m/w, weighted by
-w²/σ_v², with the prior among them, once ``_LEAST_PAIRS`` pairs agreed: a median, not a Kalman
-filter's mean, because a run of chords between fixes wrong the same way (a stretch where the map
-is distorted) moved a filter's estimate so far that its gate then refused every right chord
-after it. Consecutive chords share no fix, so their noises are independent. The fixes need not
-be at the right place: a look-alike place gives the same chord.
+and the scale is the weighted mean, weights w²/σ_v², of the last ``_CHORDS`` chords' ratios m/w
+and the prior that agree with their weighted median, once ``_LEAST_PAIRS`` pairs agreed: robust
+like a median, not a Kalman filter's running mean, because a run of chords between fixes wrong
+the same way (a stretch where the map is distorted) moved a filter's estimate so far that its
+gate then refused every right chord after it. Consecutive chords share no fix, so their noises
+are independent. The fixes need not be at the right place: a look-alike place gives the same
+chord.
 """
 
 from __future__ import annotations
@@ -205,7 +206,7 @@ class WheelScaleLearner:
         self._chords.append((measured / driven, driven * driven / noise))
         self.updates += 2
         if self.updates >= 2 * _LEAST_PAIRS:
-            self.value = _weighted_median([self._prior, *self._chords])
+            self.value = _robust_mean([self._prior, *self._chords])
 
     def _path_at(self, t: float) -> float | None:
         """The wheels' path length driven up to ``t``, interpolated between the readings
@@ -220,6 +221,16 @@ class WheelScaleLearner:
         a = readings[i - 1] if i > 0 else b
         f = 0.0 if b[0] == a[0] else (t - a[0]) / (b[0] - a[0])
         return a[1] + f * (b[1] - a[1])
+
+
+def _robust_mean(items: list[tuple[float, float]]) -> float:
+    """The weighted mean of the (ratio, weight) items that agree with their weighted median
+    (within ``_AGREE`` of their own noise, 1/weight): the median finds the majority, and the
+    mean of the majority is as precise as all of it (a median of a few noisy chords is as
+    noisy as one)."""
+    middle = _weighted_median(items)
+    kept = [(r, w) for r, w in items if (r - middle) ** 2 * w <= _AGREE]
+    return sum(r * w for r, w in kept) / sum(w for _, w in kept)
 
 
 def _weighted_median(items: list[tuple[float, float]]) -> float:
