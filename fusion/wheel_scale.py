@@ -55,9 +55,10 @@ metre on a 0.4 m base) is 0.02 % longer than its chords"""
 _CHORDS = 64
 """chords the scale is the median of: the last 130 m or more of straight path (a tyre's wear
 changes its radius far more slowly)"""
-_LEAST_PAIRS = 3
-"""pairs of agreeing chords before the scale leaves the prior: with three, one pair wrong the
-same way (a stretch where the map is distorted) is outvoted by the other two"""
+_LEAST_PAIRS = 2
+"""pairs of agreeing chords before the scale leaves the prior: one pair wrong the same way (a
+stretch where the map is distorted) is never used alone; with a second, the median lies between
+them (the prior tips it) and only the chords that agree with it are averaged"""
 _AGREE = float(chi2.ppf(0.99, 1))
 """two chords agree when their ratios differ by less than this quantile of χ²₁ of their noise"""
 _HEADINGS = 1024
