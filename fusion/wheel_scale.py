@@ -120,7 +120,6 @@ class WheelScaleLearner:
         self.updates = 0
         """chords used"""
         self._wheel_variance = config.wheel_noise**2
-        self._cos_turn = math.cos(math.radians(config.max_turn_deg))
         self._readings: deque[tuple[float, float]] = deque(maxlen=_READINGS)  # t, path
         self._path = 0.0
         self._mark: tuple[float, float] | None = None  # where the current chord started
@@ -179,7 +178,8 @@ class WheelScaleLearner:
         self._anchor = _Anchor(fix, path, [float(fix.pose[2])])
         along = math.atan2(chord[1], chord[0])
         # the heading from the chord, driving backwards folded onto forwards: |δ| ≤ 90°
-        off = np.abs(np.asarray(anchor.headings) - along + 0.5 * math.pi) % math.pi - 0.5 * math.pi
+        off = np.abs((np.asarray(anchor.headings) - along + 0.5 * math.pi) % math.pi
+                     - 0.5 * math.pi)
         if off.max() > math.radians(self.config.max_turn_deg):
             return  # not straight: its chord is no measure of its length; start again here
         u = chord / length

@@ -178,3 +178,23 @@ def test_a_pair_wrong_the_same_way_is_outvoted_by_the_next() -> None:
     learner.on_wheels(20.0, 11.0, 0.0, 0.0, broken=False)
     assert learner.updates == 4
     assert learner.value == pytest.approx(0.99, abs=0.006)
+
+
+def test_a_swerve_to_one_side_is_no_straight_path() -> None:
+    """Heading 20° off the chord for half a metre, then back along a long gentle return: the
+    path leaves its chord on one side by more than ``max_turn_deg`` and is refused, whichever
+    side."""
+    for side in (1.0, -1.0):
+        learner = WheelScaleLearner(CONFIG, prior=1.0)
+        t, x, y, path = 0.0, 0.0, 0.0, 0.0
+        learner.on_wheels(t, path, 0.0, 0.0, broken=False)
+        learner.on_fix(t, np.zeros(3), FIX_COV)
+        legs = [(math.radians(20.0) * side, 0.5)] + [(-math.radians(4.0) * side, 0.5)] * 6
+        for heading, length in legs * 3:
+            x, y = x + length * math.cos(heading), y + length * math.sin(heading)
+            path += length
+            t += 1.0
+            learner.on_wheels(t, path / 1.05, 0.0, 0.0, broken=False)
+            learner.on_fix(t, np.array((x, y, heading)), FIX_COV)
+        learner.on_wheels(t + 1.0, path / 1.05 + 0.01, 0.0, 0.0, broken=False)
+        assert learner.updates == 0, side
