@@ -34,6 +34,7 @@ import math
 from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
+from itertools import islice
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -485,15 +486,14 @@ class PoseTracker:
         else:
             odom = self._split(nodes[j], nodes[j + 1], t)[0]
         kept: deque[_Node] = deque([_Node(t, odom, x, p, _ZERO3, _ZERO33)])
-        prev = kept[0]
-        for node in list(nodes)[j + 1:newest + 1]:  # the readings after t; measurements dropped
-            if node.jump:
-                step, q = node.step, node.step_q
-            else:
-                step = increment(prev.odom, node.odom)
-                q = self.motion.noise(step)
-            kept.append(_Node(node.t, node.odom, None, None, step, q, node.jump))
-            prev = kept[-1]
+        # the readings after t keep their steps and noise (a scan-odometry correction's own,
+        # too), not their measurements; the first is re-split from t, as :meth:`apply` does
+        for node in islice(nodes, j + 1, newest + 1):
+            kept.append(_Node(node.t, node.odom, None, None, node.step, node.step_q, node.jump))
+        first_after = kept[1] if len(kept) > 1 else None
+        if first_after is not None and not first_after.jump and nodes[j].t != t:
+            first_after.step = increment(odom, first_after.odom)
+            first_after.step_q = self.motion.noise(first_after.step)
         return kept, None
 
     # ------------------------------------------------------------------------------ helpers

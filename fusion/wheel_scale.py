@@ -129,7 +129,8 @@ class WheelScaleLearner:
 
     @property
     def sigma(self) -> float:
-        """The estimate's standard error: a weighted median's, 1.25/√(Σ weights)."""
+        """The estimate's nominal standard error, 1/√(Σ weights) of the chords kept and the
+        prior, widened by 1.25 for the median that chose which of them are averaged."""
         total = self._prior[1] + sum(weight for _, weight in self._chords)
         return 1.2533 / math.sqrt(total)
 

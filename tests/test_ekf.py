@@ -487,6 +487,22 @@ def test_a_reset_in_the_past_keeps_the_odometry_since():
     assert tracker.apply(t - 0.5, [5.0, 5.0, 1.0], R_SMALL).status == "dropped"
 
 
+def test_a_reset_in_the_past_keeps_a_matched_steps_noise():
+    """Scan odometry measured the last 0.2 s to 0.1° (its own step covariance); a reset 0.3 s
+    back re-filters the odometry since with that noise, not the wheels' wider one."""
+    tracker = PoseTracker([0.0, 0.0, 0.0], P0)
+    t, odom = drive(tracker, (0.5, 1.0), seconds=1.0)
+    since = tracker._nodes[-11].t  # the reading 0.2 s before (the scan the match is from)
+    matched = compose(odom, [0.0, 0.0, 0.0])
+    tight = np.diag([1e-8, 1e-8, math.radians(0.1) ** 2])
+    assert tracker.correct_odometry(t, matched, since, tight)
+    assert tracker.reset([1.0, 1.0, 0.0], np.diag([1e-4, 1e-4, 1e-6]), t - 0.3)
+    wheels = PoseTracker([0.0, 0.0, 0.0], P0)
+    drive(wheels, (0.5, 1.0), seconds=1.0)
+    wheels.reset([1.0, 1.0, 0.0], np.diag([1e-4, 1e-4, 1e-6]), t - 0.3)
+    assert tracker.cov[2, 2] < 0.7 * wheels.cov[2, 2]
+
+
 def test_a_branch_is_the_filter_a_reset_would_give():
     """A followed hypothesis branched off the filter at a time predicts as the filter reset to
     it there would, reading for reading, and leaves the filter as it was."""
