@@ -83,8 +83,10 @@ class ScanOdometryConfig(BaseModel):
     floor_theta_deg: float = Field(0.3, ge=0, description="least σ of a matched turn")
     max_correction_xy: float = Field(
         0.5, gt=0, description="m; a match farther from the wheels' increment is not used")
-    max_correction_theta_deg: float = Field(20.0, gt=0, description="°; a match turned farther "
-                                            "from the wheels' increment is not used")
+    max_correction_theta_deg: float = Field(
+        20.0, gt=0, description="°; a match turned farther from the wheels' increment is not "
+        "used (nor one turned farther than filter.motion.max_turn_rate over the time between "
+        "the scans: the robot cannot turn that fast, so it was carried)")
     max_interval: float = Field(
         60.0, gt=0, description="s; a scan this long after the previous one is not matched to "
         "it but becomes the reference (the odometry history since the previous scan is kept "
@@ -172,6 +174,9 @@ class ScanOdometry:
         self._anchor: NDArray[np.float64] | None = None  # corrected pose there
         self._points: NDArray[np.float64] | None = None  # the reference scan
         self._time = -math.inf  # and its time
+        # the reference scan came while the wheels were late: no reading is at its time, so
+        # the wheels' increment from there would span the motion before it too
+        self._unread = False
         self._unmeasured = 0.0  # seconds of motion the wheels missed since the reference scan
         floors = (config.floor_xy**2, config.floor_xy**2, math.radians(config.floor_theta_deg)**2)
         self._floor = np.diag(floors)
@@ -208,8 +213,10 @@ class ScanOdometry:
         self.broke = False
         if self._wheels is None or len(points) < self.config.min_points:
             return None
-        if self._points is None or t - self._time > self.config.max_interval or late:
+        if (self._points is None or t - self._time > self.config.max_interval or late
+                or self._unread):
             self.skip(t, points)
+            self._unread = late
             return None
         assert self._anchor is not None and self._anchor_wheels is not None  # set with _points
         wheel_step = increment(self._anchor_wheels, self._wheels)
@@ -230,7 +237,10 @@ class ScanOdometry:
         last ones; readings that share a stamp still come, and are not late). Their increment
         would then say the robot stood still since, and the match would be fused with that;
         instead the scan becomes the reference, and the filter carries the pose past the
-        wheels' newest reading by itself (:meth:`fusion.tracker.PoseTracker.pose_at`)."""
+        wheels' newest reading by itself (:meth:`fusion.tracker.PoseTracker.pose_at`). The
+        scan after it is not matched to it either: the wheels' increment from their reading
+        before the late scan spans the motion before that scan too (over an odometry gap of
+        seconds, metres against a match of one scan interval)."""
         if self._readings > 0 or len(self._intervals) < _INTERVALS_KEPT // 2:
             return False
         return t - self._wheels_t > 2.0 * float(np.median(self._intervals))
@@ -246,7 +256,7 @@ class ScanOdometry:
         reference would drift out of view)."""
         self._anchor = self._corrected_wheels()
         self._points, self._anchor_wheels, self._time = points, self._wheels, t
-        self._unmeasured = 0.0
+        self._unmeasured, self._unread = 0.0, False
 
     def _align(self, points: NDArray[np.float64],
                wheel_step: NDArray[np.float64]) -> IcpResult | None:
@@ -270,6 +280,21 @@ class ScanOdometry:
         assert self._wheels is not None
         return compose(self._anchor, increment(self._anchor_wheels, self._wheels))
 
+    def _turn_limit(self, t: float) -> float:
+        """rad: the most a match at t may turn from the wheels' increment since the reference
+        scan. The wheels may miss part of a turn (they slip), but not a turn faster than the
+        robot turns at all: over the Δt between the scans, at most ``max_turn_rate`` · Δt (Δt
+        at least the odometry's ``jump_min_dt``, as stamps jitter), and never more than
+        ``max_correction_theta_deg``. A match beyond it aligned two scans that do not follow
+        each other: the robot was carried (a kidnap turns it within one scan interval), and in
+        a building whose doors repeat, the scan of the other place can still align. Only the
+        turn is bounded by time: every wall observes it, while the position along a corridor
+        may be what the match does not observe."""
+        motion = self.motion.config
+        interval = max(t - self._time, motion.jump_min_dt)
+        return min(math.radians(self.config.max_correction_theta_deg),
+                   motion.max_turn_rate * interval)
+
     def _fuse(self, t: float, wheel_step: NDArray[np.float64], icp: IcpResult | None
               ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
         """δ = Q (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s) with Q = (Q_w⁻¹ + Q_s⁻¹)⁻¹, the information-weighted
@@ -285,8 +310,7 @@ class ScanOdometry:
         # could have gone meanwhile
         limits = self.motion.config
         if (math.hypot(gap[0], gap[1]) > c.max_correction_xy + limits.max_speed * self._unmeasured
-                or abs(gap[2]) > (math.radians(c.max_correction_theta_deg)
-                                  + limits.max_turn_rate * self._unmeasured)):
+                or abs(gap[2]) > self._turn_limit(t) + limits.max_turn_rate * self._unmeasured):
             return None
         wheel_cov = self.motion.noise(wheel_step) + _STILL_NOISE
         if self._unmeasured > 0.0:

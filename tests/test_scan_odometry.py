@@ -516,3 +516,54 @@ def test_thin_bias_rarely_blames_a_standing_object() -> None:
         alarms += any([bias.moving(0.1 * k, np.array((1.0, 0.0)), rng.normal(), 1.0)
                        for k in range(20)])
     assert alarms <= 80
+
+
+def _turned_between_scans(interval: float, turn_deg: float) -> tuple[ScanOdometry, object]:
+    """Wheels at 10 Hz reporting a robot standing still, scans ``interval`` apart, the second
+    turned by ``turn_deg`` in the room: the scan odometry after the second scan, and its
+    correction."""
+    start = np.array([3.0, 2.5, 0.3])
+    odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    for k in range(11):
+        odometry.on_wheels(0.0, 0.0, 0.0, t=0.1 * k - 1.0)
+    odometry.match(0.0, scan_points(ROOM, start))
+    for k in range(1, round(interval / 0.1) + 1):
+        odometry.on_wheels(0.0, 0.0, 0.0, t=0.1 * k)
+    turned = compose(start, np.array([0.0, 0.0, math.radians(turn_deg)]))
+    return odometry, odometry.match(interval, scan_points(ROOM, turned))
+
+
+def test_a_turn_faster_than_the_robot_turns_is_a_carry_not_a_slip() -> None:
+    """Wheels that report standing still and scans 19° apart: over one second the wheels
+    slipped (19°/s, within the robot's 3 rad/s) and the match is fused; within one scan
+    interval of 0.1 s the robot would have turned at 3.3 rad/s, faster than it can, so the
+    scans do not follow each other (a kidnap turns the robot by 20–45° at once, and in a
+    building whose doors repeat the other place's scan still aligns): not fused, and the
+    scan odometry says the scans broke."""
+    slow, correction = _turned_between_scans(1.0, 19.0)
+    assert correction is not None and not slow.broke
+    assert abs(math.degrees(correction.pose[2]) - 19.0) < 2.0  # the wheels pull a little
+    fast, correction = _turned_between_scans(0.1, 19.0)
+    assert correction is None and fast.broke
+
+
+def test_the_scan_after_one_the_wheels_were_late_for_is_not_matched_to_it() -> None:
+    """No wheel reading for 3 s while the robot drives 1.5 m, then the reading with all of
+    that motion: the scan during the gap becomes the reference uncorrected, and the scan
+    just after the gap is not matched to it either (the wheels' increment since their last
+    reading spans the 1.5 m before the reference too, which an aliased match would then
+    follow); the scan after that is matched as usual."""
+    odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    for k in range(21):
+        odometry.on_wheels(2.0 + 0.05 * k, 3.0, 0.0, t=0.1 * k)
+    assert odometry.match(2.0, scan_points(ROOM, np.array([3.0, 3.0, 0.0]))) is None  # first
+    assert odometry.match(4.5, scan_points(ROOM, np.array([4.25, 3.0, 0.0]))) is None  # late
+    assert odometry.reference_time == 4.5
+    odometry.on_wheels(4.5, 3.0, 0.0, t=5.0)
+    pose = np.array([4.5, 3.0, 0.0])
+    assert odometry.match(5.0, scan_points(ROOM, pose)) is None and not odometry.broke
+    assert odometry.reference_time == 5.0
+    odometry.on_wheels(4.55, 3.0, 0.0, t=5.1)
+    correction = odometry.match(5.1, scan_points(ROOM, compose(pose, [0.05, 0.0, 0.0])))
+    assert correction is not None
+    assert np.hypot(*(correction.pose[:2] - (4.55, 3.0))) < 0.01
