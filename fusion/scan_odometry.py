@@ -215,8 +215,7 @@ class ScanOdometry:
             return None
         if (self._points is None or t - self._time > self.config.max_interval or late
                 or self._unread):
-            self.skip(t, points)
-            self._unread = late
+            self.skip(t, points, unread=late)
             return None
         assert self._anchor is not None and self._anchor_wheels is not None  # set with _points
         wheel_step = increment(self._anchor_wheels, self._wheels)
@@ -251,12 +250,13 @@ class ScanOdometry:
                                                            correction.pose)
         self._time, self._unmeasured = correction.t, 0.0
 
-    def skip(self, t: float, points: NDArray[np.float64]) -> None:
+    def skip(self, t: float, points: NDArray[np.float64], unread: bool = False) -> None:
         """The scan was not corrected: it becomes the reference at its uncorrected pose (an older
-        reference would drift out of view)."""
+        reference would drift out of view). ``unread``: the wheels were late for it, so the
+        next scan is not matched to it either (:meth:`_wheels_late`)."""
         self._anchor = self._corrected_wheels()
         self._points, self._anchor_wheels, self._time = points, self._wheels, t
-        self._unmeasured, self._unread = 0.0, False
+        self._unmeasured, self._unread = 0.0, unread
 
     def _align(self, points: NDArray[np.float64],
                wheel_step: NDArray[np.float64]) -> IcpResult | None:
