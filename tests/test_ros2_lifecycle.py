@@ -41,6 +41,7 @@ from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped, TransformSta
 from lifecycle_msgs.msg import State, Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from nav_msgs.msg import OccupancyGrid, Odometry
+from rclpy.event_handler import PublisherEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import LaserScan
@@ -108,9 +109,16 @@ class Client:
         c.create_subscription(DiagnosticArray, "/diagnostics", lambda m: self._add(
             self.diagnostics, (m.status[0].level[0] if isinstance(m.status[0].level, bytes)
                                else m.status[0].level, m.status[0].message)), 10)
-        self.scan_pub = c.create_publisher(LaserScan, "scan", 10)
-        self.rear_pub = c.create_publisher(LaserScan, "scan_rear", 10)
-        self.odom_pub = c.create_publisher(Odometry, "odom", 100)
+        # how many subscriptions each input topic has ever matched: a node killed with -9 stays
+        # matched until its DDS lease runs out (20 s), so a restarted node's subscriptions are
+        # known by this count growing, not by the count of those matched now
+        self.matched: dict[str, int] = {"scan": 0, "scan_rear": 0, "odom": 0}
+        self.scan_pub = c.create_publisher(LaserScan, "scan", 10,
+                                           event_callbacks=self._on_matched("scan"))
+        self.rear_pub = c.create_publisher(LaserScan, "scan_rear", 10,
+                                           event_callbacks=self._on_matched("scan_rear"))
+        self.odom_pub = c.create_publisher(Odometry, "odom", 100,
+                                           event_callbacks=self._on_matched("odom"))
         self.static_pub = c.create_publisher(TFMessage, "/tf_static", LATCHED)
         self.map_pub = c.create_publisher(OccupancyGrid, "map", LATCHED)
         self.executor = SingleThreadedExecutor(context=self.context)
@@ -119,6 +127,13 @@ class Client:
         self.executor.add_node(c)
         self.thread = threading.Thread(target=self.executor.spin, daemon=True)
         self.thread.start()
+
+    def _on_matched(self, topic: str) -> PublisherEventCallbacks:
+        def matched(info: Any) -> None:
+            with self.got:
+                self.matched[topic] = info.total_count
+                self.got.notify_all()
+        return PublisherEventCallbacks(matched=matched)
 
     def _add(self, where: list, value: Any) -> None:
         with self.got:
