@@ -15,12 +15,11 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from fusion.ambiguity import AmbiguityConfig
-from fusion.motion import OdometryMotionConfig
 from fusion.resources import find_config
-from fusion.scan_odometry import ScanOdometryConfig
-from fusion.wheel_scale import WheelScaleConfig
-from houghloc import HoughConfig
+from fusion.settings.ambiguity import AmbiguityConfig
+from fusion.settings.filter import FilterConfig
+from fusion.settings.scan_odometry import ScanOdometryConfig
+from houghloc.config import HoughConfig
 from houghloc.yaml_io import read_yaml, validated
 
 METRICS_VERSION_KEY = "houghloc_version"
@@ -60,26 +59,6 @@ class SensorConfig(_Strict):
         if self.hough.rho_max > reach:
             object.__setattr__(self, "hough", self.hough.model_copy(update={"rho_max": reach}))
         return self
-
-
-class FilterConfig(_Strict):
-    """The EKF and its history of delayed measurements (docs/method.md §7)."""
-
-    motion: OdometryMotionConfig = OdometryMotionConfig()
-    wheel_scale: WheelScaleConfig = WheelScaleConfig()
-    initial_sigma_xy: float = Field(0.05, gt=0.0,
-                                    description="m; σ in x and y of an initial pose given")
-    initial_sigma_theta_deg: float = Field(1.0, gt=0.0,
-                                           description="°; σ of an initial pose's heading")
-    gate_probability: float = Field(
-        0.9999, gt=0.5, lt=1.0, description="NIS gate: χ² probability that a right fix passes")
-    history_seconds: float = Field(2.0, gt=0.0, description="how late a measurement may be")
-    delayed_updates: bool = Field(True, description="apply late measurements at their own time")
-
-    @property
-    def initial_cov(self) -> list[list[float]]:
-        s, t = self.initial_sigma_xy**2, math.radians(self.initial_sigma_theta_deg) ** 2
-        return [[s, 0.0, 0.0], [0.0, s, 0.0], [0.0, 0.0, t]]
 
 
 class LocalizerConfig(_Strict):

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.ambiguity.fit import ScanFit
-from fusion.hypotheses import HypothesisConfig
+from fusion.settings.hypotheses import HypothesisConfig
 from houghloc import HoughConfig, ScanCorrection
 
 STEP = 0.01

@@ -15,6 +15,7 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.settings.filter import GATE_PROBABILITY
 from fusion.status import ScanStatus
 from houghloc.geometry import TWO_PI, Pose, compose, positive_definite, wrap_scalar
 from houghloc.jit import njit
@@ -94,7 +95,8 @@ class PoseEKF(ExtendedKalmanFilter):
     tracker uses it as the engine for every step of its history.
     """
 
-    def __init__(self, pose: ArrayLike, cov: ArrayLike, gate_prob: float | None = 0.999) -> None:
+    def __init__(self, pose: ArrayLike, cov: ArrayLike,
+                 gate_prob: float | None = GATE_PROBABILITY) -> None:
         super().__init__(dim_x=3, dim_z=3)
         self.x = np.array(pose, dtype=float)
         self.P = np.array(cov, dtype=float)

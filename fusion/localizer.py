@@ -18,18 +18,18 @@ from time import perf_counter
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.ambiguity import AmbiguityManager, Verdict
+from fusion.ambiguity.manager import AmbiguityManager, Verdict
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.corridor import CorridorMeasurement, CorridorPlacement
 from fusion.ekf import UpdateOutcome
+from fusion.estimate import Estimate
 from fusion.events import MAX_POSE_COORDINATE
-from fusion.hypotheses import HypothesisConfig
-from fusion.integrity import localized_probability
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
 from fusion.points_fix import PointsFix, PointsMeasurement
 from fusion.scan_odometry import ScanOdometry
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
+from fusion.settings.hypotheses import HypothesisConfig
 from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
 from fusion.tracker import warm_up as warm_up_filter
@@ -37,8 +37,8 @@ from fusion.visualize import Logger, NullLogger
 from fusion.wheel_scale import WheelScaleLearner
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points, within_range
-from houghloc.jit import warm_up
 from houghloc.localize import clean_points
+from houghloc.warm_up import warm_up
 
 log = logging.getLogger(__name__)
 LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them all
@@ -47,30 +47,6 @@ _Use = tuple[ScanStatus, UpdateOutcome | None, CorridorMeasurement | None,
 """what a tracking scan did to the filter: status, outcome, corridor placement, polished guess"""
 _POINTS_FIX_STATUSES = (ScanStatus.NO_FIX, ScanStatus.AMBIGUOUS, ScanStatus.MISFIT)
 """the refusals of a fix after which the guess polished on the scan's points is offered"""
-
-
-@dataclass(frozen=True, slots=True)
-class Estimate:
-    """The pose at a measurement's time after using it, and what happened to the measurement."""
-
-    t: float
-    pose: NDArray[np.float64]
-    cov: NDArray[np.float64]
-    status: ScanStatus
-    correction: ScanCorrection | None = None
-    outcome: UpdateOutcome | None = None
-    along: CorridorMeasurement | None = None
-    """the corridor fix placed along its corridor by the scan's points, when it was"""
-    by_points: PointsMeasurement | None = None
-    """the guess polished on the scan's points, offered where the lines' fix was refused"""
-    mode: float = 1.0
-    """the probability that the filter is around the right place at all (fusion.integrity)"""
-
-    @property
-    def localized_probability(self) -> float:
-        """The probability that ``pose`` is within 0.3 m and 5° of the truth
-        (:func:`fusion.integrity.localized_probability`)."""
-        return localized_probability(self.cov, self.mode)
 
 
 @dataclass

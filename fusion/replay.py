@@ -24,13 +24,14 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from fusion.config import METRICS_VERSION_KEY
+from fusion.estimate import Estimate
 from fusion.evaluation import ATE, ATEResult, LostFraction, NEESResult, Trajectory, chi2_band, nees
 from fusion.events import Event, Landmark, Odometry, PointSet, ReadStats, Scan, Truth
 from fusion.integrity import integrity_scores, is_localized, localized_probability
 from fusion.io.files import atomic_write_json
 from fusion.io.localized import LocalizedWriter
 from fusion.io.tum import TumWriter
-from fusion.localizer import Estimate, Localizer
+from fusion.localizer import Localizer
 from houghloc import __version__
 
 

@@ -110,7 +110,7 @@ from fusion.status import ScanStatus
 from houghloc.geometry import compose, relative
 
 if TYPE_CHECKING:
-    from fusion.localizer import Estimate
+    from fusion.estimate import Estimate
     from houghloc import ScanCorrection, SegmentMap
 
 _log = logging.getLogger(__name__)

@@ -16,7 +16,7 @@ from houghloc.geometry import within_radius, wrap_scalar
 from houghloc.jit import fma, njit
 
 if TYPE_CHECKING:
-    from fusion.scan_odometry import ScanOdometryConfig
+    from fusion.settings.scan_odometry import ScanOdometryConfig
 
 
 _DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e3 per axis

@@ -35,25 +35,17 @@ from bisect import bisect_right
 from collections import deque
 from dataclasses import dataclass, field
 from itertools import islice
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.ekf import PoseEKF, UpdateOutcome
-from fusion.motion import (
-    OdometryMotionConfig,
-    OdometryMotionModel,
-    compose_increments,
-    increment,
-    interpolate,
-)
+from fusion.motion import OdometryMotionModel, compose_increments, increment, interpolate
+from fusion.settings.filter import GATE_PROBABILITY, FilterConfig
+from fusion.settings.motion import OdometryMotionConfig
 from fusion.status import ScanStatus
 from houghloc.geometry import compose, wrap_angle
 from houghloc.jit import njit
-
-if TYPE_CHECKING:  # the config module imports the filter's pieces, not the other way round
-    from fusion.config import FilterConfig
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +108,7 @@ class PoseTracker:
         initial_cov: ArrayLike,
         motion_cfg: OdometryMotionConfig | None = None,
         history_seconds: float = 2.0,
-        gate_prob: float | None = 0.999,
+        gate_prob: float | None = GATE_PROBABILITY,
         delayed_updates: bool = True,
     ) -> None:
         if not history_seconds > 0:

@@ -10,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 if TYPE_CHECKING:
-    from fusion.localizer import Estimate
+    from fusion.estimate import Estimate
     from houghloc import ScanCorrection, SegmentMap
 
 

@@ -43,8 +43,9 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from pydantic import BaseModel, ConfigDict, Field
 from scipy.stats import chi2
+
+from fusion.settings.wheel_scale import WheelScaleConfig
 
 _PENDING = 16
 """fixes waiting for the wheel reading after them (a few scans' worth: readings come at 5–100 Hz)"""
@@ -65,27 +66,6 @@ _HEADINGS = 1024
 """full fixes between two ends of a chord at most (a robot that stands still starts afresh)"""
 _READINGS = 4096
 """wheel readings kept to interpolate a waiting fix's (minutes at 50 Hz; a fix waits one reading)"""
-
-
-class WheelScaleConfig(BaseModel):
-    """The wheels' distance scale, learned online from full fixes (:mod:`fusion.wheel_scale`)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-
-    sigma: float | None = Field(
-        0.05, gt=0, description="how far the wheels' true distance per reported metre may be "
-        "from `filter.motion.translation_scale`, σ (tyre wear, load, a wrong radius: a few per "
-        "cent); None: not learned, the configured scale is used as it is")
-    baseline: float = Field(2.0, gt=0, description="m: the least distance between two full "
-                            "fixes that observe the scale; a few fixes' errors (cm) over it "
-                            "make one observation good to a per cent or two")
-    wheel_noise: float = Field(0.01, ge=0, description="m per √m: the wheels' random distance "
-                               "error (a rolling wheel on a floor: millimetres per metre), "
-                               "without their scale error")
-    max_turn_deg: float = Field(10.0, gt=0, lt=90, description="°: the path between two fixes "
-                                "counts as straight when every full fix on it heads within this "
-                                "of their chord (its length is then within 1.5 % of the chord's, "
-                                "and is corrected by the headings)")
 
 
 @dataclass(frozen=True, slots=True)

@@ -70,12 +70,12 @@ from houghloc.match_result import (
     POSE_COST,
     REFINE_COST,
     GlobalResult,
-    Neighbourhood,
     Stages,
     decide,
     subsample,
     valid,
 )
+from houghloc.neighbourhood import Neighbourhood
 from houghloc.pose_hypotheses import (
     candidate_count,
     observed_pairs,

@@ -1,5 +1,5 @@
-"""What a global match returns, how it is asked to stay near a pose, and how its stages
-count their cost (:mod:`houghloc.global_match`, :mod:`houghloc.slide`)."""
+"""What a global match returns and how its stages count their cost
+(:mod:`houghloc.global_match`, :mod:`houghloc.slide`)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,6 @@ from numpy.typing import NDArray
 
 from houghloc.config import GlobalMatchConfig
 from houghloc.hypothesis_scores import Hypothesis
-from houghloc.jit import njit
-from houghloc.pose_hypotheses import in_neighbourhood
 
 
 @dataclass(frozen=True)
@@ -27,35 +25,6 @@ class GlobalResult:
     @property
     def best(self) -> Hypothesis | None:
         return self.hypotheses[0] if self.hypotheses else None
-
-
-@dataclass(frozen=True)
-class Neighbourhood:
-    """Poses within ``radius_xy`` (m) and ``radius_theta`` (rad) of ``pose``."""
-
-    pose: NDArray[np.float64]
-    radius_xy: float
-    radius_theta: float
-
-    def contains(self, poses: NDArray) -> NDArray[np.bool_]:
-        """Which of ``poses`` (P×3) lie in the neighbourhood (:func:`in_neighbourhood`)."""
-        return _contains(np.asarray(poses, dtype=float).reshape(-1, 3), *self.kernel_args())
-
-    def kernel_args(self) -> tuple[float, float, float, float, float]:
-        """The neighbourhood as the compiled tests take it: centre (x, y, θ), squared radius,
-        heading radius."""
-        return (float(self.pose[0]), float(self.pose[1]), float(self.pose[2]),
-                float(self.radius_xy) ** 2, float(self.radius_theta))
-
-
-@njit
-def _contains(poses: NDArray, near_x: float, near_y: float, near_theta: float,
-              radius_xy_sq: float, radius_theta: float) -> NDArray[np.bool_]:
-    out = np.empty(len(poses), np.bool_)
-    for p in range(len(poses)):
-        out[p] = in_neighbourhood(poses[p, 0], poses[p, 1], poses[p, 2], near_x, near_y,
-                                  near_theta, radius_xy_sq, radius_theta)
-    return out
 
 
 Stages = Generator[int, None, GlobalResult]

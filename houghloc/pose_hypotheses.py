@@ -15,11 +15,11 @@ from numpy.typing import NDArray
 from houghloc.geometry import TWO_PI, mod_two_pi
 from houghloc.jit import njit
 from houghloc.map_lookup import AngleIndex
+from houghloc.neighbourhood import Neighbourhood, in_neighbourhood
 from houghloc.refine import Lines
 
 if TYPE_CHECKING:
     from houghloc.config import GlobalMatchConfig
-    from houghloc.match_result import Neighbourhood
 
 
 # ---------------------------------------------------------------------------- 1. hypotheses
@@ -96,16 +96,6 @@ def _windows(lines: Lines, pair_i: NDArray[np.intp], pair_k: NDArray[np.intp],
     lo = np.searchsorted(index.delta, d_obs - tol, side="left")
     hi = np.searchsorted(index.delta, d_obs + tol, side="right")
     return lo, _within_budget(hi - lo, config.max_pair_hypotheses), float(tol.max())
-
-
-@njit
-def in_neighbourhood(x: float, y: float, theta: float, near_x: float, near_y: float,
-                     near_theta: float, radius_xy_sq: float, radius_theta: float) -> bool:
-    """Whether the pose (x, y, θ) lies within √``radius_xy_sq`` and ``radius_theta`` of the
-    neighbourhood's centre (the heading difference wrapped to [−π, π))."""
-    dx, dy = x - near_x, y - near_y
-    return (dx * dx + dy * dy <= radius_xy_sq
-            and abs(mod_two_pi(theta - near_theta + np.pi) - np.pi) <= radius_theta)
 
 
 @njit

@@ -30,12 +30,12 @@ from houghloc.match_result import (
     REFINE_COST,
     STAGE_LOOKUPS,
     GlobalResult,
-    Neighbourhood,
     Stages,
     decide,
     subsample,
     valid,
 )
+from houghloc.neighbourhood import Neighbourhood
 from houghloc.pose_hypotheses import row_chunks, top_indices
 from houghloc.refine import Lines
 from houghloc.segment_map import SegmentMap

@@ -12,8 +12,10 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 
 from fusion import Localizer, LocalizerConfig
-from fusion.ambiguity import AmbiguityConfig, AmbiguityManager, State, visible_parallel_spacing
+from fusion.ambiguity.manager import AmbiguityManager
+from fusion.ambiguity.spacing import visible_parallel_spacing
 from fusion.events import Odometry, PointSet, Scan
+from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.sim import (
     CameraConfig,
     Kidnap,
@@ -25,7 +27,7 @@ from fusion.sim import (
 )
 from fusion.sim.routes import OFFICE_LOOP
 from fusion.sim.run import interpolate_poses
-from fusion.status import ScanStatus
+from fusion.status import ScanStatus, State
 from houghloc import HoughConfig, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points
 from tests.conftest import REPO
@@ -183,7 +185,7 @@ def test_fixes_off_the_walls_after_a_kidnap_are_not_used():
 def test_misfit_is_relative_to_recent_fixes(office):
     """A fix is compared with the fixes before it, so a cluttered place (few points on walls at
     any pose) does not make every fix a misfit; a fix that puts the scan off the walls is one."""
-    from fusion.ambiguity import AmbiguityManager
+    from fusion.ambiguity.manager import AmbiguityManager
 
     manager = AmbiguityManager(office)
     pose = np.array([5.0, 6.0, 0.0])
@@ -596,7 +598,7 @@ def test_corridor_seen_along_its_length_is_placed_by_sliding(office):
     assert result.ambiguous  # the copy 7 m along
     # searched near a guess 0.6 m and 8° off, the copy is out of reach: no tie, and only the
     # corridor's poses inside the neighbourhood are slid over
-    from houghloc.match_result import Neighbourhood
+    from houghloc.neighbourhood import Neighbourhood
 
     near = Neighbourhood(true + [0.6, 0.1, math.radians(8.0)], 1.0, math.radians(20.0))
     local = global_match(lines, points, office, cfg, near=near)

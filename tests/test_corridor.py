@@ -11,10 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from fusion.ambiguity import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
 from fusion.corridor import CorridorPlacement
-from fusion.hypotheses import HypothesisConfig
+from fusion.settings.ambiguity import AmbiguityConfig
+from fusion.settings.hypotheses import HypothesisConfig
 from houghloc import HoughConfig, SegmentMap, localize_scan
 from tests.test_scan_odometry import CORRIDOR, scan_points
 

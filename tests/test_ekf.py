@@ -13,12 +13,12 @@ from scipy.stats import chi2
 from fusion.ekf import PoseEKF
 from fusion.motion import (
     OdometryCalibration,
-    OdometryMotionConfig,
     OdometryMotionModel,
     compose_increments,
     increment,
     interpolate,
 )
+from fusion.settings.motion import OdometryMotionConfig
 from fusion.tracker import PoseTracker
 from houghloc.geometry import compose, positive_definite, relative, within_radius, wrap_angle
 

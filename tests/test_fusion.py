@@ -414,7 +414,7 @@ def test_global_steps_run_with_blas_on_one_thread_and_the_process_keeps_its_thre
     setting is back."""
     from threadpoolctl import threadpool_info
 
-    from fusion.ambiguity import AmbiguityManager
+    from fusion.ambiguity.manager import AmbiguityManager
     from houghloc.jit import one_blas_thread
 
     def blas_threads() -> set[int]:
@@ -439,7 +439,7 @@ from numba.core.registry import CPUDispatcher
 import fusion, houghloc
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
 from fusion.tracker import warm_up as warm_up_filter
-from houghloc.jit import warm_up
+from houghloc.warm_up import warm_up
 kernels = {{}}
 for package in (houghloc, fusion):
     for module in pkgutil.walk_packages(package.__path__, package.__name__ + "."):

@@ -17,7 +17,8 @@ from houghloc.geometry import TWO_PI, mod_two_pi, relative, transform_points, wr
 from houghloc.global_match import GlobalMatchConfig, global_match
 from houghloc.hypothesis_scores import END_GRAZE, cluster, seen_directly
 from houghloc.map_lookup import angle_index, inside_map, map_box, wall_distance
-from houghloc.match_result import GlobalResult, Neighbourhood
+from houghloc.match_result import GlobalResult
+from houghloc.neighbourhood import Neighbourhood
 from houghloc.pose_hypotheses import (
     observed_pairs,
     pair_hypotheses,

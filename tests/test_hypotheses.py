@@ -17,10 +17,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fusion import LocalizerConfig
-from fusion.config import FilterConfig
 from fusion.events import Scan
-from fusion.hypotheses import HypothesisBank, HypothesisConfig
+from fusion.hypotheses import HypothesisBank
 from fusion.localizer import Localizer
+from fusion.settings.filter import FilterConfig
+from fusion.settings.hypotheses import HypothesisConfig
 from fusion.tracker import PoseTracker
 from houghloc import HoughConfig
 from tests.test_ambiguity import OFFICE, drive, kidnap_run, kidnap_trial, settled_after

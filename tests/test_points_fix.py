@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fusion.ambiguity import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
 from fusion.config import LocalizerConfig
 from fusion.localizer import Localizer
 from fusion.points_fix import PointsFix
+from fusion.settings.ambiguity import AmbiguityConfig
 from houghloc import HoughConfig, SegmentMap
 from tests.test_scan_odometry import CORRIDOR, ROOM, scan_points
 

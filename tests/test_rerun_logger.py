@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from rerun.chunk import RrdReader
 
 from fusion.ekf import UpdateOutcome
-from fusion.localizer import Estimate
+from fusion.estimate import Estimate
 from fusion.rerun_columns import PATH_PIECE, PathPieces
 from fusion.rerun_logger import RerunLogger
 from fusion.rerun_scans import HoughRow, hough_columns

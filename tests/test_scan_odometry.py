@@ -16,8 +16,10 @@ from scipy.stats import chi2
 
 from fusion.config import ConfigError, LocalizerConfig
 from fusion.experiment import localize_simulated
-from fusion.motion import OdometryMotionConfig, OdometryMotionModel
-from fusion.scan_odometry import ScanOdometry, ScanOdometryConfig, point_to_line_icp
+from fusion.motion import OdometryMotionModel
+from fusion.scan_odometry import ScanOdometry, point_to_line_icp
+from fusion.settings.motion import OdometryMotionConfig
+from fusion.settings.scan_odometry import ScanOdometryConfig
 from fusion.sim import scenario_preset, simulate
 from fusion.tracker import PoseTracker
 from houghloc.geometry import compose, ranges_to_points, ray_segment_distances

@@ -9,7 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fusion.wheel_scale import WheelScaleConfig, WheelScaleLearner
+from fusion.settings.wheel_scale import WheelScaleConfig
+from fusion.wheel_scale import WheelScaleLearner
 
 FIX_SIGMA = 0.01
 FIX_COV = np.diag([FIX_SIGMA**2, FIX_SIGMA**2, 1e-5])

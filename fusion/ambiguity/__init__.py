@@ -10,14 +10,6 @@
 * :mod:`~fusion.ambiguity.ties` — the rules-based alternative to followed hypotheses;
 * :mod:`~fusion.ambiguity.views` — the views collected for a global match;
 * :mod:`~fusion.ambiguity.spacing` — the line spacing that bounds a trusted covariance;
-* :mod:`~fusion.ambiguity.config` — its settings.
+* :mod:`fusion.settings.ambiguity` — its settings (apart, so that a configuration is read
+  without loading the manager).
 """
-
-from fusion.ambiguity.config import AmbiguityConfig
-from fusion.ambiguity.fit import ScanFit
-from fusion.ambiguity.manager import AmbiguityManager, Decision, Transition, Verdict
-from fusion.ambiguity.spacing import visible_parallel_spacing
-from fusion.status import State
-
-__all__ = ["AmbiguityConfig", "AmbiguityManager", "Decision", "ScanFit", "State", "Transition",
-           "Verdict", "visible_parallel_spacing"]

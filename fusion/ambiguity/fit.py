@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.ambiguity.config import AmbiguityConfig
+from fusion.settings.ambiguity import AmbiguityConfig
 from houghloc import SegmentMap
 from houghloc.hypothesis_scores import seen_directly
 from houghloc.map_lookup import wall_distance

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.ambiguity.config import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
 from fusion.hypotheses import scan_log_likelihood
+from fusion.settings.ambiguity import AmbiguityConfig
 from houghloc import (
     GlobalResult,
     HoughConfig,
@@ -25,8 +25,8 @@ from houghloc import (
 )
 from houghloc.displacement import UNOBSERVED_VARIANCE
 from houghloc.geometry import wrap_angle, wrap_scalar
-from houghloc.match_result import Neighbourhood
 from houghloc.matching import gate_threshold
+from houghloc.neighbourhood import Neighbourhood
 
 
 @dataclass(frozen=True, slots=True)

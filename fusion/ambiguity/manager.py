@@ -36,12 +36,12 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.ambiguity.config import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
 from fusion.ambiguity.local_search import LocalSearch
 from fusion.ambiguity.relocalization import Decision, Relocalization, reinit_floor
 from fusion.ambiguity.tracking import Belief, TrackingWatch, Verdict
 from fusion.hypotheses import MakeTracker
+from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.status import ScanStatus, State
 from fusion.visualize import Logger
 from houghloc import HoughConfig, ScanCorrection, SegmentMap

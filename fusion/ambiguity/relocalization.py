@@ -17,12 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.ambiguity.config import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
 from fusion.ambiguity.ties import Ties, break_with_prior
 from fusion.ambiguity.tracking import Belief
 from fusion.ambiguity.views import Views
 from fusion.hypotheses import BankVerdict, HypothesisBank, MakeTracker
+from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.status import State
 from fusion.visualize import Logger
 from houghloc import GlobalResult, HoughConfig, Hypothesis, SegmentMap, observe_lines

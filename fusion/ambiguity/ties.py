@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.ambiguity.config import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
+from fusion.settings.ambiguity import AmbiguityConfig
 from houghloc import HoughConfig, Hypothesis, SegmentMap, localize_scan, observe_lines
 from houghloc.geometry import compose, relative, wrap_scalar
 from houghloc.localize import clean_points

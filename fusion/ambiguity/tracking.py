@@ -14,13 +14,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.ambiguity.config import AmbiguityConfig
 from fusion.ambiguity.fit import ScanFit
 from fusion.ambiguity.spacing import (
     SAME_WALL_GAP,
     closest_parallel_spacing,
     visible_parallel_spacing,
 )
+from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.status import ScanStatus
 from houghloc import ScanCorrection, SegmentMap
 from houghloc.geometry import compose, relative

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.ambiguity.config import AmbiguityConfig
+from fusion.settings.ambiguity import AmbiguityConfig
 from houghloc.geometry import relative, transform_points
 
 

@@ -46,7 +46,6 @@ import itertools
 import logging
 from collections.abc import Iterator
 from dataclasses import dataclass, field
-from enum import StrEnum
 from pathlib import Path
 
 from fusion.events import Event, ReadStats
@@ -54,57 +53,22 @@ from fusion.io.carmen_records import (
     _KNOWN_RECORDS,
     _LASER_RECORDS,
     NO_RETURN_RANGE,
+    NOMINAL_ODOMETRY_RATE,
+    CarmenConventions,
     CarmenParser,
     FlaserSpacing,
+    StampClock,
 )
 from fusion.io.errors import LogError
 from fusion.io.textfile import open_text_log
 
 log = logging.getLogger(__name__)
 
-"""Ranges at or above this (metres) are "no return" (SICK logs use 81.83 / 81.91)."""
-
-"""How many bad records per file are reported through ``logging`` (all are counted)."""
-
-class StampClock(StrEnum):
-    """Where a record's time comes from."""
-
-    STAMPS = "stamps"
-    """its ``ipc_timestamp``, as it is"""
-    NEGATED = "negated"
-    """its ``ipc_timestamp`` negated: a log whose stamps run backwards throughout (written with
-    the sign flipped) still has the right intervals"""
-    ORDER = "order"
-    """the records' order, at :data:`NOMINAL_ODOMETRY_RATE` (or the time its increment takes at
-    :data:`NOMINAL_PACE`, when longer): a log whose stamps cannot order its records (all zero,
-    or every record one or two stamps, as ``%g`` prints Unix time)"""
-
-
-NOMINAL_ODOMETRY_RATE = 5.0
-"""Hz: odometry records a second assumed when a log's stamps cannot be used; each laser record
-is taken at its odometry record's time. Robots publish odometry at 5–50 Hz: a clock that runs
-slow only makes the motion look slower than it was, which nothing rejects (the motion model is
-per metre and radian), where one that runs fast makes real motion look like jumps beyond
-``filter.motion.max_speed``."""
-NOMINAL_PACE = (0.5, 1.0)
-"""m/s and rad/s: a robot indoors drives no faster, on the clock kept from the records' order;
-a record whose increment is larger is taken as that much later."""
 MIN_STAMPS_JUDGED = 20
 """records read ahead before a log's stamps are judged unusable"""
 
 SNIFF_LINES = 20000
 """Lines read ahead to detect the log's conventions (corrected or raw, odometry source)."""
-
-@dataclass(frozen=True, slots=True)
-class CarmenConventions:
-    """How a log is to be interpreted; detected from its first lines unless given."""
-
-    corrected: bool
-    """ODOM lines are re-anchored on corrected poses; laser poses are references."""
-    laser_odometry: bool
-    """No ODOM records: odometry comes from the laser records' ``odom_x odom_y odom_theta``."""
-    clock: StampClock = StampClock.STAMPS
-    """How the records' times are read (:class:`StampClock`)."""
 
 
 @dataclass

@@ -8,27 +8,26 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Iterator
+from dataclasses import dataclass
 from enum import StrEnum
-from typing import TYPE_CHECKING, TextIO
+from pathlib import Path
+from typing import Protocol, TextIO
 
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.events import MAX_POSE_COORDINATE, Event, Odometry, Scan, Truth
+from fusion.events import MAX_POSE_COORDINATE, Event, Odometry, ReadStats, Scan, Truth
 from fusion.io.errors import LogError
 from fusion.io.numbers import parse_floats
 from houghloc.geometry import compose, relative
-
-if TYPE_CHECKING:
-    from fusion.io.carmen import CarmenLog
 
 # the reader's logger: warnings name the log they come from
 log = logging.getLogger("fusion.io.carmen")
 
 NO_RETURN_RANGE = 80.0
-
-
+"""Ranges at or above this (metres) are "no return" (SICK logs use 81.83 / 81.91)."""
 LOGGED_WARNINGS = 20
+"""How many bad records per file are reported through ``logging`` (all are counted)."""
 
 
 _KNOWN_RECORDS = frozenset(
@@ -100,15 +99,67 @@ def flaser_angles(n: int, spacing: FlaserSpacing = FlaserSpacing.PI_OVER_N) -> N
     return angles
 
 
+class StampClock(StrEnum):
+    """Where a record's time comes from."""
+
+    STAMPS = "stamps"
+    """its ``ipc_timestamp``, as it is"""
+    NEGATED = "negated"
+    """its ``ipc_timestamp`` negated: a log whose stamps run backwards throughout (written with
+    the sign flipped) still has the right intervals"""
+    ORDER = "order"
+    """the records' order, at :data:`NOMINAL_ODOMETRY_RATE` (or the time its increment takes at
+    :data:`NOMINAL_PACE`, when longer): a log whose stamps cannot order its records (all zero,
+    or every record one or two stamps, as ``%g`` prints Unix time)"""
+
+
+NOMINAL_ODOMETRY_RATE = 5.0
+"""Hz: odometry records a second assumed when a log's stamps cannot be used; each laser record
+is taken at its odometry record's time. Robots publish odometry at 5–50 Hz: a clock that runs
+slow only makes the motion look slower than it was, which nothing rejects (the motion model is
+per metre and radian), where one that runs fast makes real motion look like jumps beyond
+``filter.motion.max_speed``."""
+NOMINAL_PACE = (0.5, 1.0)
+"""m/s and rad/s: a robot indoors drives no faster, on the clock kept from the records' order;
+a record whose increment is larger is taken as that much later."""
+
+
+@dataclass(frozen=True, slots=True)
+class CarmenConventions:
+    """How a log is to be interpreted; detected from its first lines unless given."""
+
+    corrected: bool
+    """ODOM lines are re-anchored on corrected poses; laser poses are references."""
+    laser_odometry: bool
+    """No ODOM records: odometry comes from the laser records' ``odom_x odom_y odom_theta``."""
+    clock: StampClock = StampClock.STAMPS
+    """How the records' times are read (:class:`StampClock`)."""
+
+
 class _BadRecord(ValueError):
     """A record that cannot be used; the message says why (the caller adds the line number)."""
 
 
 
+class RecordSource(Protocol):
+    """What a pass over a log's records reads of the log (:class:`fusion.io.carmen.CarmenLog`)."""
+
+    @property
+    def path(self) -> Path: ...
+    @property
+    def conventions(self) -> CarmenConventions: ...
+    @property
+    def spacing(self) -> FlaserSpacing: ...
+    @property
+    def no_return_range(self) -> float: ...
+    @property
+    def stats(self) -> ReadStats: ...
+
+
 class CarmenParser:
     """One pass over a log: parses records, rebuilds raw odometry, fills the stats."""
 
-    def __init__(self, source: CarmenLog) -> None:
+    def __init__(self, source: RecordSource) -> None:
         self.source = source
         self.stats = source.stats
         self.corrected = source.conventions.corrected
@@ -300,13 +351,11 @@ class CarmenParser:
         return [Truth(self._time(tokens[7], None), *pose.tolist())]
 
     def _time(self, text: str, odometry: NDArray[np.float64] | None) -> float:
-        """A record's time by the log's clock (:class:`fusion.io.carmen.StampClock`).
+        """A record's time by the log's clock (:class:`StampClock`).
         ``odometry``: the record's odometry pose, when it carries the odometry; such a record
         advances a clock kept from the records' order, by a nominal interval, or by the time
         the robot needs to drive the increment since the last one at a nominal pace when that
         is longer (a driver that stalled for seconds reports all the motion at once)."""
-        from fusion.io.carmen import NOMINAL_ODOMETRY_RATE, NOMINAL_PACE, StampClock
-
         t = _time(text)
         if self._clock is StampClock.NEGATED:
             return -t

@@ -46,9 +46,10 @@ from sensor_msgs.msg import LaserScan
 from std_srvs.srv import Empty
 
 from fusion.config import LocalizerConfig
+from fusion.estimate import Estimate
 from fusion.events import Scan
 from fusion.io.rosbag import StaticTree, odometry_event, scan_event
-from fusion.localizer import Estimate, Localizer
+from fusion.localizer import Localizer
 from fusion.resources import find_config, find_map
 from fusion.ros2.messages import planar_covariance, planar_pose
 from fusion.ros2.odometry import OdometryBuffer

@@ -14,8 +14,8 @@ from numpy.typing import NDArray
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import Float32, String
 
+from fusion.estimate import Estimate
 from fusion.integrity import is_localized
-from fusion.localizer import Estimate
 from fusion.ros2.messages import (
     map_to_odom,
     ros_covariance,

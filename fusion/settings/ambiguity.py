@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from fusion.hypotheses import HypothesisConfig
-from houghloc import GlobalMatchConfig
+from fusion.settings.hypotheses import HypothesisConfig
+from houghloc.config import GlobalMatchConfig
 
 
 class AmbiguityConfig(BaseModel):
