@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from time import perf_counter
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -185,6 +186,46 @@ class Localizer:
     def localized(self) -> bool:
         """Tracking at the end, and for at least half of the scans: the run can be trusted."""
         return self.manager.state is State.TRACKING and self.stats.tracked_fraction >= 0.5
+
+    def summary(self) -> dict[str, Any]:
+        """What became of every input so far, by the parts that decided it: the filter's
+        updates and refusals, the fixes' statuses, the manager's states and counts, the wheel
+        scale learned and scan odometry's matches; the configuration last (``metrics.json``
+        reports this beside the run's own figures)."""
+        stats, counts = self.stats, self.tracker.counts
+        start = self.initial_pose
+        config = self.config.as_dict()
+        config["initial_pose"] = None if start is None else [float(v) for v in start]
+        doc: dict[str, Any] = {
+            "initial_pose": config["initial_pose"],
+            "updates": counts.updates,
+            "rejections": counts.rejected,
+            "delayed_measurements": counts.delayed,
+            "dropped_measurements": counts.dropped + stats.dropped,
+            "odometry_jumps": counts.odometry_jumps,
+            "odometry_backwards": counts.odometry_backwards,
+            "invalid_inputs": counts.invalid,
+            "invalid_odometry": stats.invalid_odometry,
+            "stray_timestamps": stats.stray_timestamps,
+            "fixes": {"accepted": stats.accepted, "rejected": stats.rejected,
+                      "ambiguous": stats.ambiguous, "no_fix": stats.no_fix,
+                      "partial_rank": stats.partial_rank,
+                      "placed_along_corridor": stats.placed_along,
+                      "polished_guesses": stats.points_fixes, "late": stats.late},
+            "statuses": dict(stats.statuses),
+            "tracked_fraction": round(stats.tracked_fraction, 6),
+            "localized": self.localized,
+            "ambiguity": self.manager.summary(),
+        }
+        if self.wheel_scale is not None:
+            doc["wheel_scale"] = {"estimate": round(self.wheel_scale.value, 6),
+                                  "sigma": round(self.wheel_scale.sigma, 6),
+                                  "updates": self.wheel_scale.updates}
+        if self.scan_odometry is not None:
+            doc["scan_odometry"] = {"matched": self.scan_odometry.matched,
+                                    "unmatched": self.scan_odometry.unmatched}
+        doc["config"] = config
+        return doc
 
     @property
     def pose(self) -> NDArray[np.float64]:

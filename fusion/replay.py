@@ -312,51 +312,19 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
                      reference: Trajectory | None, extra: dict[str, Any] | None = None
                      ) -> dict[str, Any]:
     """Everything ``metrics.json`` reports: counts, time per stage, accuracy when known."""
-    stats = localizer.stats
-    counts = localizer.tracker.counts
+    own = localizer.summary()
     n = result.scans
-    config = localizer.config.as_dict()
-    start = localizer.initial_pose
-    config["initial_pose"] = None if start is None else [float(v) for v in start]
-    doc: dict[str, Any] = {
-        METRICS_VERSION_KEY: __version__,
-        "initial_pose": config["initial_pose"],
-        "scans": n,
-        "events": result.events,
-        "interrupted": result.interrupted,
-        "updates": counts.updates,
-        "rejections": counts.rejected,
-        "delayed_measurements": counts.delayed,
-        "dropped_measurements": counts.dropped + stats.dropped,
-        "odometry_jumps": counts.odometry_jumps,
-        "odometry_backwards": counts.odometry_backwards,
-        "invalid_inputs": counts.invalid,
-        "invalid_odometry": stats.invalid_odometry,
-        "stray_timestamps": stats.stray_timestamps
-        + (read_stats.stray_timestamps if read_stats is not None else 0),
-        "fixes": {"accepted": stats.accepted, "rejected": stats.rejected,
-                  "ambiguous": stats.ambiguous, "no_fix": stats.no_fix,
-                  "partial_rank": stats.partial_rank,
-                  "placed_along_corridor": stats.placed_along,
-                  "polished_guesses": stats.points_fixes, "late": stats.late},
-        "statuses": dict(stats.statuses),
-        "tracked_fraction": round(stats.tracked_fraction, 6),
-        "localized": localizer.localized,
-        "integrity": result.integrity(),
-        "ambiguity": localizer.manager.summary(),
-        "seconds": {k: round(v, 6) for k, v in result.seconds.items()},
-        "time_per_scan_ms": {
-            k: round(1e3 * v / n, 4) for k, v in result.seconds.items() if n and k != "total"},
-        "scans_per_second": _finite(result.scans_per_second),
-    }
-    learner = localizer.wheel_scale
-    if learner is not None:
-        doc["wheel_scale"] = {"estimate": round(learner.value, 6),
-                              "sigma": round(learner.sigma, 6),
-                              "updates": learner.updates}
-    so = localizer.scan_odometry
-    if so is not None:
-        doc["scan_odometry"] = {"matched": so.matched, "unmatched": so.unmatched}
+    doc: dict[str, Any] = {METRICS_VERSION_KEY: __version__, "initial_pose": own["initial_pose"],
+                           "scans": n, "events": result.events,
+                           "interrupted": result.interrupted}
+    doc.update((k, v) for k, v in own.items() if k not in ("initial_pose", "config"))
+    if read_stats is not None:  # the reader's stray stamps beside the localizer's
+        doc["stray_timestamps"] += read_stats.stray_timestamps
+    doc["integrity"] = result.integrity()
+    doc["seconds"] = {k: round(v, 6) for k, v in result.seconds.items()}
+    doc["time_per_scan_ms"] = {
+        k: round(1e3 * v / n, 4) for k, v in result.seconds.items() if n and k != "total"}
+    doc["scans_per_second"] = _finite(result.scans_per_second)
     if read_stats is not None:
         doc["log"] = {"records": read_stats.records, "skipped": read_stats.skipped,
                       "backwards_timestamps": read_stats.backwards_timestamps,
@@ -366,7 +334,7 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
     doc.update(accuracy(result, reference))
     if extra:
         doc.update(extra)
-    doc["config"] = config  # last: the long part, and what `--config metrics.json` reads back
+    doc["config"] = own["config"]  # last: the long part, what `--config metrics.json` reads back
     return doc
 
 

@@ -239,6 +239,25 @@ def test_a_scan_just_before_its_odometry_is_recorded_at_its_own_time() -> None:
     assert np.allclose(result.poses[0, :2], expected, atol=1e-6)
 
 
+def test_the_localizers_summary_is_what_metrics_json_reports_of_it() -> None:
+    """``Localizer.summary()`` accounts for every scan by its status and every fix by its fate,
+    and ``metrics.json`` reports it as it is, beside the run's own figures."""
+    from fusion.replay import metrics_document
+
+    run = simulated("robocup-laser", seed=0, duration=10.0)
+    loc = Localizer(run.map, config_for("robocup-laser"), initial_pose=run.odom_truth[0])
+    result = replay(run.events(), loc, progress=False)
+    own = loc.summary()
+    assert sum(own["statuses"].values()) == result.scans == len(run.scan_t)
+    assert own["statuses"].get("accepted", 0) == own["fixes"]["accepted"] >= 0.9 * result.scans
+    assert own["updates"] >= own["fixes"]["accepted"] and own["localized"]
+    assert list(own)[-1] == "config" and own["config"]["initial_pose"] == pytest.approx(
+        list(run.odom_truth[0]))
+    doc = metrics_document(result, loc, None, None)
+    assert {k: doc[k] for k in own} == own and list(doc)[-1] == "config"
+    assert doc["scans"] == result.scans and "integrity" in doc
+
+
 def test_gate_rejects_one_metre_outliers_one_minute() -> None:
     check_gating("robocup-laser", seed=0, duration=SHORT)
 
