@@ -1,9 +1,10 @@
 """What the localizer returns for each measurement: the pose at its time, its covariance, what
-became of the measurement, and the probability that the pose is right (:class:`Estimate`)."""
+became of the measurement, and the probability that the pose is right (:class:`Estimate`); and
+what became of all of them so far (:class:`LocalizerStats`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -12,7 +13,7 @@ from fusion.corridor import CorridorMeasurement
 from fusion.ekf import UpdateOutcome
 from fusion.integrity import localized_probability
 from fusion.points_fix import PointsMeasurement
-from fusion.status import ScanStatus
+from fusion.status import ScanStatus, State
 from houghloc.localize import ScanCorrection
 
 
@@ -38,3 +39,54 @@ class Estimate:
         """The probability that ``pose`` is within 0.3 m and 5° of the truth
         (:func:`fusion.integrity.localized_probability`)."""
         return localized_probability(self.cov, self.mode)
+
+
+@dataclass
+class LocalizerStats:
+    """Counts for ``metrics.json``: what became of every measurement.
+
+    ``statuses`` counts every status a scan ended with (:class:`Estimate`); the named counts
+    read it."""
+
+    scans: int = 0
+    partial_rank: int = 0
+    placed_along: int = 0
+    points_fixes: int = 0
+    """scans whose refused fix was replaced by the guess polished on their points (offered to
+    the filter, whose counts say what it made of them)"""
+    late: int = 0
+    """measurements (fixes and polished guesses) offered to the filter for a time before its
+    newest reading: applied at their own time, the odometry since re-propagated"""
+    stray_timestamps: int = 0
+    invalid_odometry: int = 0
+    statuses: dict[str, int] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=lambda: {"hough": 0.0, "update": 0.0})
+
+    @property
+    def tracked_fraction(self) -> float:
+        """The share of scans that ended while tracking (a fix used or not, the pose trusted);
+        the rest ended collecting views, relocalizing or lost."""
+        untracked = {s.value for s in State if s is not State.TRACKING} | {ScanStatus.RELOCALIZED}
+        total = sum(self.statuses.values())
+        lost = sum(v for k, v in self.statuses.items() if k in untracked)
+        return 1.0 - lost / total if total else 0.0
+
+    @property
+    def accepted(self) -> int:
+        return self.statuses.get(ScanStatus.ACCEPTED, 0)
+
+    @property
+    def rejected(self) -> int:
+        return self.statuses.get(ScanStatus.REJECTED, 0)
+
+    @property
+    def ambiguous(self) -> int:
+        return self.statuses.get(ScanStatus.AMBIGUOUS, 0)
+
+    @property
+    def no_fix(self) -> int:
+        return self.statuses.get(ScanStatus.NO_FIX, 0)
+
+    @property
+    def dropped(self) -> int:
+        return self.statuses.get(ScanStatus.DROPPED, 0)

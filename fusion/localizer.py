@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 from time import perf_counter
 from typing import Any
@@ -23,7 +22,7 @@ from fusion.ambiguity.manager import AmbiguityManager, Verdict
 from fusion.config import LocalizerConfig, SensorConfig
 from fusion.corridor import CorridorMeasurement, CorridorPlacement
 from fusion.ekf import UpdateOutcome
-from fusion.estimate import Estimate
+from fusion.estimate import Estimate, LocalizerStats
 from fusion.events import MAX_POSE_COORDINATE
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
@@ -48,57 +47,6 @@ _Use = tuple[ScanStatus, UpdateOutcome | None, CorridorMeasurement | None,
 """what a tracking scan did to the filter: status, outcome, corridor placement, polished guess"""
 _POINTS_FIX_STATUSES = (ScanStatus.NO_FIX, ScanStatus.AMBIGUOUS, ScanStatus.MISFIT)
 """the refusals of a fix after which the guess polished on the scan's points is offered"""
-
-
-@dataclass
-class LocalizerStats:
-    """Counts for ``metrics.json``: what became of every measurement.
-
-    ``statuses`` counts every status a scan ended with (:class:`Estimate`); the named counts
-    read it."""
-
-    scans: int = 0
-    partial_rank: int = 0
-    placed_along: int = 0
-    points_fixes: int = 0
-    """scans whose refused fix was replaced by the guess polished on their points (offered to
-    the filter, whose counts say what it made of them)"""
-    late: int = 0
-    """measurements (fixes and polished guesses) offered to the filter for a time before its
-    newest reading: applied at their own time, the odometry since re-propagated"""
-    stray_timestamps: int = 0
-    invalid_odometry: int = 0
-    statuses: dict[str, int] = field(default_factory=dict)
-    seconds: dict[str, float] = field(default_factory=lambda: {"hough": 0.0, "update": 0.0})
-
-    @property
-    def tracked_fraction(self) -> float:
-        """The share of scans that ended while tracking (a fix used or not, the pose trusted);
-        the rest ended collecting views, relocalizing or lost."""
-        untracked = {s.value for s in State if s is not State.TRACKING} | {ScanStatus.RELOCALIZED}
-        total = sum(self.statuses.values())
-        lost = sum(v for k, v in self.statuses.items() if k in untracked)
-        return 1.0 - lost / total if total else 0.0
-
-    @property
-    def accepted(self) -> int:
-        return self.statuses.get(ScanStatus.ACCEPTED, 0)
-
-    @property
-    def rejected(self) -> int:
-        return self.statuses.get(ScanStatus.REJECTED, 0)
-
-    @property
-    def ambiguous(self) -> int:
-        return self.statuses.get(ScanStatus.AMBIGUOUS, 0)
-
-    @property
-    def no_fix(self) -> int:
-        return self.statuses.get(ScanStatus.NO_FIX, 0)
-
-    @property
-    def dropped(self) -> int:
-        return self.statuses.get(ScanStatus.DROPPED, 0)
 
 
 class Localizer:

@@ -3,35 +3,7 @@ when somebody wants to look. Its public methods are exactly those of
 :class:`fusion.visualize.Logger`. How it looks: :mod:`fusion.rerun_view`; how the rows are
 batched: :mod:`fusion.rerun_columns`; the served web viewer: :mod:`fusion.rerun_serve`.
 
-Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D transform)::
-
-    world/map/walls, world/map/lines          LineStrips2D, static: walls grey, painted lines
-                                              white and thinner
-    world/map/matched                         the walls of the map lines the scan matched, each in
-                                              its line's colour (that of the points on it)
-    world/scan/points                         the scan at the estimated pose, each point in the
-                                              colour of the map line its observed line matched;
-                                              on an unmatched observed line light grey, else grey
-    world/scan/<sensor>/points                the same for every sensor after the first one seen
-    world/robot/estimate                      Arrows2D, coloured by the measurement's status
-    world/robot/covariance                    95 % ellipse of the x-y covariance (LineStrips2D)
-    world/robot/truth                         Arrows2D, when ground truth is logged
-    world/path/{estimate,odometry,truth}/<k>  the paths, in pieces (see below); odometry is
-                                              est₀ ⊕ (odom₀⁻¹ ⊕ odomₖ), anchored at the first scan;
-                                              the newest piece labelled with the path's name
-    hough/accumulator                         DepthImage of the votes, viridis colour map (8 bits
-                                              when the first scan has ≤ 255 points, else 16)
-    hough/peaks, hough/references             Points2D in accumulator pixels (references labelled
-                                              with their segment ids)
-    hough/matches                             LineStrips2D, observed line → its reference point
-    metrics/innovation/{x,y,theta}, metrics/nis, metrics/sigma/{x,y,theta}, metrics/matches,
-    metrics/error/{position,heading}          Scalars (errors: truth interpolated at the scan)
-    metrics/along_corridor                    Scalars (m a corridor fix was moved along it)
-    metrics/localized                         Scalars (the probability that the pose is right,
-                                              fusion.integrity)
-    log/state                                 TextLog: the ambiguity manager's state and reason
-    log/scan                                  TextLog: why a scan was not used (not "accepted")
-    global/hypotheses                         Arrows2D with the scores as labels
+The entities drawn and their paths: :mod:`fusion.rerun_view`.
 
 Timelines: ``time`` (sensor seconds: a duration for simulated clocks, a timestamp once the clock
 looks like Unix time) and ``scan`` (sequence; events between scans carry only ``time``).
@@ -79,14 +51,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.rerun_columns import (
     BATCH_SCANS,
-    ColumnBatch,
     ErrorSeries,
-    ImageBatch,
     PathPieces,
     strips_from_points,
 )
 from fusion.rerun_scans import HoughRow, ScanRows, hough_columns, moved_points, scan_points
 from fusion.rerun_serve import GRPC_PORT, SERVE_HOST, WEB_PORT, die_with_parent, web_viewer_command
+from fusion.rerun_stream import ColumnStream
 from fusion.rerun_view import (
     ARROW_LENGTH,
     PAINTED,
@@ -102,7 +73,6 @@ from fusion.rerun_view import (
     batch_point_rows,
     covariance_ellipse,
     default_blueprint,
-    entity_styles,
     heading_vector,
     hough_marks,
 )
@@ -116,15 +86,9 @@ if TYPE_CHECKING:
 _log = logging.getLogger(__name__)
 
 BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
-# Hough images buffered per send: a send costs ~0.4 ms whatever its size, a row a copy of its
-# pixels into a new block (the sinks keep reading the block sent). 86 of Intel's 24 kB images a
-# block: 25 a send cost 16 µs an image, 100 cost 6 µs; a block of 4 MiB or more is mapped on
-# huge pages by NumPy, whose first touch tripled the copy's 3 µs.
-IMAGE_BLOCK_BYTES = 2 << 20
 WALL_TABLE_CELLS = 1 << 22  # scans × walls looked at in one pass for the matched walls (bytes)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
-UNIX_TIME_THRESHOLD = 1e8  # s; a clock past 1973 is a wall clock, not a simulation's
 
 METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
            "sigma/theta", "matches", "error/position", "error/heading", "along_corridor")
@@ -144,7 +108,7 @@ def _path_style(name: str, recent: bool) -> Any:
 
 
 # ------------------------------------------------------------------------------- the logger
-class RerunLogger:
+class RerunLogger(ColumnStream):
     """Records every stage to its own :class:`rerun.RecordingStream` (never the global one).
 
     ``path``: write an ``.rrd`` file there. ``serve``: host a gRPC server on ``SERVE_HOST`` only
@@ -158,11 +122,11 @@ class RerunLogger:
     serving, ``BATCH_SECONDS`` of wall time), and by :meth:`flush` / :meth:`close` (the Hough
     images also every ``IMAGE_BLOCK_BYTES``); the state log and the hypotheses are logged at once.
 
-    About 500 lines, on purpose: every stage's writer shares the one stream, its batches, its
-    time columns and the map's colours; the parts that stand alone are apart (the look:
-    :mod:`fusion.rerun_view`; the scans' raw rows and the arrays drawn from them:
-    :mod:`fusion.rerun_scans`; the columns, paths and error series: :mod:`fusion.rerun_columns`;
-    the served viewer: :mod:`fusion.rerun_serve`).
+    Every stage's writer shares the one stream, its batches, its time columns and the map's
+    colours (the stream and its columns: :class:`fusion.rerun_stream.ColumnStream`); the parts
+    that stand alone are apart (the look: :mod:`fusion.rerun_view`; the scans' raw rows and the
+    arrays drawn from them: :mod:`fusion.rerun_scans`; the columns, paths and error series:
+    :mod:`fusion.rerun_columns`; the served viewer: :mod:`fusion.rerun_serve`).
     """
 
     def __init__(self, path: str | Path | None = None, *, serve: bool = False,
@@ -172,8 +136,8 @@ class RerunLogger:
         # Unless a viewer watches live, images are gathered into larger chunks (see BATCH_SCANS)
         batcher = None if serve else rr.ChunkBatcherConfig(flush_tick=FILE_FLUSH_SECONDS,
                                                            flush_num_bytes=FILE_CHUNK_BYTES)
-        self.stream = rr.RecordingStream(app_id, recording_id=uuid.uuid4(),
-                                         batcher_config=batcher)
+        super().__init__(rr.RecordingStream(app_id, recording_id=uuid.uuid4(),
+                                            batcher_config=batcher))
         self.accumulator_every = int(accumulator_every)
         self.memory: Any = None
         self.grpc_url: str | None = None  # for the native viewer: ``rerun <grpc_url>``
@@ -197,12 +161,6 @@ class RerunLogger:
         if serve and web_port is not None:
             self._start_web_viewer(web_port)
         self._closed = False
-        self._time_kind: str | None = None
-        self._styles = entity_styles()
-        self._batches: dict[str, ColumnBatch] = {}
-        self._styled: set[str] = set()
-        self._accumulator_entities: dict[tuple[int, int], str] = {}
-        self._images: dict[str, ImageBatch] = {}  # the Hough images, by entity
         self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
@@ -354,33 +312,6 @@ class RerunLogger:
         self.close()
 
     # ---------------------------------------------------------------- time and batches
-    def _set_time(self, t: float, scan: int | None = None) -> None:
-        """Time of an immediate log call; events between scans belong to no scan."""
-        self.stream.reset_time()
-        if scan is not None:
-            self.stream.set_time("scan", sequence=int(scan))
-        self.stream.set_time("time", **{self._clock(t): float(t)})
-
-    def _clock(self, t: float) -> str:
-        """``duration`` for a simulated clock, ``timestamp`` for Unix time; fixed at first use."""
-        if self._time_kind is None:
-            self._time_kind = "timestamp" if t > UNIX_TIME_THRESHOLD else "duration"
-        return self._time_kind
-
-    def _time_column(self, t: NDArray[np.float64]) -> rr.TimeColumn:
-        return rr.TimeColumn("time", **{self._clock(float(t[0])): t})
-
-    def _batch(self, entity: str, archetype: Any, style: Any = None) -> ColumnBatch:
-        batch = self._batches.get(entity)
-        if batch is None:
-            batch = self._batches[entity] = ColumnBatch(entity, archetype)
-            self._style_once(entity, style if style is not None else self._styles.get(entity))
-        return batch
-
-    def _style_once(self, entity: str, style: Any) -> None:
-        if style is not None and entity not in self._styled:
-            self._styled.add(entity)
-            self.stream.log(entity, style, static=True)
 
     def _send_batches(self, final: bool = False) -> None:
         self._send_scans()
@@ -390,21 +321,6 @@ class RerunLogger:
         for images in self._images.values():
             images.send(self.stream, self._time_column)
         self._last_send = time.monotonic()
-
-    def _send(self, entity: str, archetype: Any, rows: ScanRows, picked: Any,
-              lengths: ArrayLike | None, **data: Any) -> None:
-        """One entity's rows (``picked``, None: every row), ``lengths`` instances each (None:
-        one), with one ``send_columns`` call; its style is logged before its first rows."""
-        self._style_once(entity, self._styles.get(entity))
-        t, scan = np.asarray(rows.t), np.asarray(rows.scan)
-        if picked is not None:
-            t, scan = t[picked], scan[picked]
-        if len(t) == 0:
-            return
-        self.stream.send_columns(
-            entity, indexes=[self._time_column(t), rr.TimeColumn("scan", sequence=scan)],
-            columns=archetype.columns(**data).partition(
-                np.ones(len(t), np.int64) if lengths is None else lengths))
 
     def _send_scans(self) -> None:
         """Every scan since the last send, drawn as columns (:mod:`fusion.rerun_scans`)."""
@@ -516,34 +432,6 @@ class RerunLogger:
                    labels=marks["reference_labels"])
         self._send("hough/matches", rr.LineStrips2D, rows, picked, marks["match_lengths"],
                    strips=marks["matches"], colors=marks["match_colours"])
-
-    def _accumulator(self, t: float, index: int, votes: NDArray | None, n_points: int) -> None:
-        """The vote image, copied into a block sent when ``IMAGE_BLOCK_BYTES`` are full (and with
-        the other batches). Its format is static per entity: a grid of another shape (another
-        sensor's settings) gets its own entity."""
-        if votes is None:
-            return
-        h, w = votes.shape
-        entity = self._accumulator_entities.get((h, w))
-        if entity is None:
-            entity = self._accumulator_entities[(h, w)] = (
-                "hough/accumulator" if not self._accumulator_entities
-                else f"hough/accumulator/{h}x{w}")
-        batch = self._images.get(entity)
-        if batch is None:  # the format and style once: building them costs more than the row
-            # A cell gets at most one vote per point: 8 bits hold every vote of a sensor whose
-            # first scan has at most 255 points (a 180-beam laser: half the bytes of 16 bits);
-            # a later scan of more points is drawn saturated there. 16 bits otherwise.
-            dtype = np.uint8 if n_points <= 255 else np.uint16
-            rows = max(IMAGE_BLOCK_BYTES // (h * w * np.dtype(dtype).itemsize), 1)
-            batch = self._images[entity] = ImageBatch(entity, (h, w), dtype, rows)
-            self._style_once(entity, rr.DepthImage.from_fields(
-                format=rr.components.ImageFormat(
-                    width=w, height=h,
-                    channel_datatype="U8" if dtype is np.uint8 else "U16"),
-                meter=1.0, colormap="viridis", draw_order=0.0))
-        if batch.add(t, index, votes, n_points):  # a cell gets at most a vote per point
-            batch.send(self.stream, self._time_column)
 
     # ---------------------------------------------------------------- time series
     def _innovation(self, row: int, correction: Any, outcome: Any) -> None:

@@ -1,6 +1,36 @@
 """How the recording looks: the colours (one per map line, a neutral one for the walls), the
 styles logged once per entity, the geometry drawn (covariance ellipses, accumulator pixels) and
 the default blueprint that lays the views out (readable on a 1600 × 1000 screen).
+
+Entity paths (2D geometry already in map coordinates: rerun 0.41 has no 2D transform)::
+
+    world/map/walls, world/map/lines          LineStrips2D, static: walls grey, painted lines
+                                              white and thinner
+    world/map/matched                         the walls of the map lines the scan matched, each in
+                                              its line's colour (that of the points on it)
+    world/scan/points                         the scan at the estimated pose, each point in the
+                                              colour of the map line its observed line matched;
+                                              on an unmatched observed line light grey, else grey
+    world/scan/<sensor>/points                the same for every sensor after the first one seen
+    world/robot/estimate                      Arrows2D, coloured by the measurement's status
+    world/robot/covariance                    95 % ellipse of the x-y covariance (LineStrips2D)
+    world/robot/truth                         Arrows2D, when ground truth is logged
+    world/path/{estimate,odometry,truth}/<k>  the paths, in pieces (see below); odometry is
+                                              est₀ ⊕ (odom₀⁻¹ ⊕ odomₖ), anchored at the first scan;
+                                              the newest piece labelled with the path's name
+    hough/accumulator                         DepthImage of the votes, viridis colour map (8 bits
+                                              when the first scan has ≤ 255 points, else 16)
+    hough/peaks, hough/references             Points2D in accumulator pixels (references labelled
+                                              with their segment ids)
+    hough/matches                             LineStrips2D, observed line → its reference point
+    metrics/innovation/{x,y,theta}, metrics/nis, metrics/sigma/{x,y,theta}, metrics/matches,
+    metrics/error/{position,heading}          Scalars (errors: truth interpolated at the scan)
+    metrics/along_corridor                    Scalars (m a corridor fix was moved along it)
+    metrics/localized                         Scalars (the probability that the pose is right,
+                                              fusion.integrity)
+    log/state                                 TextLog: the ambiguity manager's state and reason
+    log/scan                                  TextLog: why a scan was not used (not "accepted")
+    global/hypotheses                         Arrows2D with the scores as labels
 """
 
 from __future__ import annotations
