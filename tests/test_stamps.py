@@ -1,6 +1,6 @@
 """Logs as they come: CARMEN logs whose stamps cannot order their records are read by the
 records' order, and logs whose stamps run backwards throughout are read negated
-(fusion.io.carmen_records.StampClock); either way the run localizes as the log with true stamps
+(fusion.io.carmen_conventions.StampClock); either way the run localizes as the log with true stamps
 does."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from fusion.config import LocalizerConfig
 from fusion.evaluation import ATE, Trajectory
 from fusion.events import Odometry, Scan
 from fusion.io.carmen import read_carmen
-from fusion.io.carmen_records import NOMINAL_ODOMETRY_RATE, StampClock
+from fusion.io.carmen_conventions import NOMINAL_ODOMETRY_RATE, StampClock
 from fusion.run_log import open_source, run_log
 from fusion.sim import scenario_preset, simulate, write_run
 

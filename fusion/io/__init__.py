@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 from fusion.events import Event, ReadStats, Scan
 from fusion.io.camera_points import read_camera_points
 from fusion.io.carmen import CarmenLog, read_carmen
-from fusion.io.carmen_records import FlaserSpacing, flaser_angles
+from fusion.io.carmen_conventions import FlaserSpacing, flaser_angles
 from fusion.io.errors import LogError
 from fusion.io.files import atomic_write_json, atomic_write_text
 from fusion.io.intel_mat import IntelMatLog, read_intel_mat

@@ -49,16 +49,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from fusion.events import Event, ReadStats
-from fusion.io.carmen_records import (
-    _KNOWN_RECORDS,
-    _LASER_RECORDS,
-    NO_RETURN_RANGE,
+from fusion.io.carmen_conventions import (
     NOMINAL_ODOMETRY_RATE,
     CarmenConventions,
-    CarmenParser,
     FlaserSpacing,
     StampClock,
 )
+from fusion.io.carmen_records import _KNOWN_RECORDS, _LASER_RECORDS, NO_RETURN_RANGE, CarmenParser
 from fusion.io.errors import LogError
 from fusion.io.textfile import open_text_log
 
