@@ -62,7 +62,7 @@ class Measurement:
 class Node:
     t: float
     odom: NDArray[np.float64]
-    x: NDArray[np.float64] | None  # None: not computed yet (see PoseTracker._estimate)
+    x: NDArray[np.float64] | None  # None: not computed yet (see PoseHistory._estimate)
     p: NDArray[np.float64] | None
     step: NDArray[np.float64]  # increment from the previous node's odometry, robot frame
     step_q: NDArray[np.float64]  # its covariance

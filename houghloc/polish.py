@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 from houghloc.config import HoughConfig, derived
 from houghloc.jit import njit
 from houghloc.segment_map import SegmentMap, check_grid_size
+from houghloc.subspace import expand, project, project_vector, solve_spd, well_conditioned
 
 MAX_STEPS = 5
 """Gauss–Newton steps at most. The residuals are linear in the translation and nearly so in a
@@ -48,9 +49,6 @@ pairings of points at the gate's edge flip back and forth, and what they move is
 laser's noise."""
 CONVERGED = 1e-4
 """m (and rad): a step smaller than this (a tenth of a millimetre) ends the iterations."""
-MIN_CONDITION = 1e-12
-"""Smallest eigenvalue of BᵀHB over its largest below which the scan's points do not pin the pose
-in every direction the fix observed: the fix is left as it is."""
 
 
 @dataclass(frozen=True)
@@ -188,36 +186,23 @@ def _polish_fix_kernel(args: tuple, cov: NDArray, unobservable: NDArray, gate: f
     if not ok:
         return polished, cov, information, False
     k = basis.shape[1]
-    step = _project_vector(basis, polished - pose)  # θ unwrapped: the polish turns from the fix's
+    step = project_vector(basis, polished - pose)  # θ unwrapped: the polish turns from the fix's
     spread = np.empty((k, k))
-    _project(basis, cov, spread)
-    if not step @ _solve_spd(spread, step) <= gate:  # NaN too: a spread not positive definite
+    project(basis, cov, spread)
+    if not step @ solve_spd(spread, step) <= gate:  # NaN too: a spread not positive definite
         return polished, cov, information, False
     reduced_cov = np.empty((k, k))
     unit = np.zeros(k)
     for j in range(k):  # (BᵀHB)⁻¹ column by column
         unit[:] = 0.0
         unit[j] = 1.0
-        reduced_cov[:, j] = _solve_spd(information, unit)
-    new_cov = _expand(basis, reduced_cov)
+        reduced_cov[:, j] = solve_spd(information, unit)
+    new_cov = expand(basis, reduced_cov)
     for i in range(3):
         for j in range(3):
             for c in range(unobservable.shape[1]):
                 new_cov[i, j] += unobserved_variance * unobservable[i, c] * unobservable[j, c]
-    return polished, new_cov, _expand(basis, information), True
-
-
-@njit
-def _expand(basis: NDArray, m: NDArray) -> NDArray:
-    """B m Bᵀ (3×3) of a k×k ``m``."""
-    k = basis.shape[1]
-    out = np.zeros((3, 3))
-    for i in range(3):
-        for j in range(3):
-            for a in range(k):
-                for b in range(k):
-                    out[i, j] += basis[i, a] * m[a, b] * basis[j, b]
-    return out
+    return polished, new_cov, expand(basis, information), True
 
 
 @njit
@@ -367,14 +352,14 @@ def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis
         groups = _normal_equations(points, w, unit, pose, paired, starts, normal, line,
                                    rho_floor_sq, theta_floor_sq, sigma_floor_sq, min_points,
                                    slot, keys, counts, sums, H, g)
-        _project(basis, H, reduced)
-        if groups < 2 or not _well_conditioned(reduced):
+        project(basis, H, reduced)
+        if groups < 2 or not well_conditioned(reduced):
             return pose, reduced, False
         if step == MAX_STEPS:
             break
         # the step Δ = −B (BᵀHB)⁻¹ Bᵀg, the Gauss–Newton step confined to the span of B
         converged = True
-        solution = _solve_spd(reduced, _project_vector(basis, g))
+        solution = solve_spd(reduced, project_vector(basis, g))
         for i in range(3):
             move = 0.0
             for j in range(k):
@@ -384,78 +369,3 @@ def _polish_kernel(points: NDArray, w: NDArray, unit: bool, pose: NDArray, basis
         if converged:
             break
     return pose, reduced, True
-
-
-@njit
-def _project(basis: NDArray, H: NDArray, out: NDArray) -> None:
-    """BᵀHB into ``out`` (k×k)."""
-    k = basis.shape[1]
-    for a in range(k):
-        for b in range(k):
-            total = 0.0
-            for i in range(3):
-                row = 0.0
-                for j in range(3):
-                    row += H[i, j] * basis[j, b]
-                total += basis[i, a] * row
-            out[a, b] = total
-
-
-@njit
-def _project_vector(basis: NDArray, g: NDArray) -> NDArray:
-    """Bᵀg."""
-    k = basis.shape[1]
-    out = np.zeros(k)
-    for a in range(k):
-        for i in range(3):
-            out[a] += basis[i, a] * g[i]
-    return out
-
-
-@njit
-def _well_conditioned(m: NDArray) -> bool:
-    """Smallest eigenvalue of the symmetric positive semi-definite ``m`` (2×2 or 3×3) over its
-    largest above ``MIN_CONDITION``. The usual case is decided without eigenvalues: λ_min/λ_max
-    ≥ det / λ_max^k ≥ det / trace^k, and det's rounding is a thousandth of the bound tested (a
-    margin of ten covers it). Otherwise LAPACK's eigenvalues decide."""
-    k = m.shape[0]
-    trace = 0.0
-    for i in range(k):
-        trace += m[i, i]
-    if k == 2:
-        det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
-    else:
-        det = (m[0, 0] * (m[1, 1] * m[2, 2] - m[1, 2] * m[2, 1])
-               - m[0, 1] * (m[1, 0] * m[2, 2] - m[1, 2] * m[2, 0])
-               + m[0, 2] * (m[1, 0] * m[2, 1] - m[1, 1] * m[2, 0]))
-    if trace > 0.0 and det > 10.0 * MIN_CONDITION * trace**k:
-        return True
-    eig = np.linalg.eigvalsh(m)
-    return bool(eig[0] > MIN_CONDITION * eig[-1])
-
-
-@njit
-def _solve_spd(m: NDArray, rhs: NDArray) -> NDArray:
-    """x with m x = rhs, m symmetric positive definite (k ≤ 3): Cholesky, m = LLᵀ."""
-    k = m.shape[0]
-    low = np.zeros((k, k))
-    for j in range(k):
-        diagonal = m[j, j]
-        for c in range(j):
-            diagonal -= low[j, c] * low[j, c]
-        low[j, j] = math.sqrt(diagonal)
-        for i in range(j + 1, k):
-            value = m[i, j]
-            for c in range(j):
-                value -= low[i, c] * low[j, c]
-            low[i, j] = value / low[j, j]
-    x = rhs.copy()
-    for i in range(k):  # L y = rhs
-        for c in range(i):
-            x[i] -= low[i, c] * x[c]
-        x[i] /= low[i, i]
-    for i in range(k - 1, -1, -1):  # Lᵀ x = y
-        for c in range(i + 1, k):
-            x[i] -= low[c, i] * x[c]
-        x[i] /= low[i, i]
-    return x

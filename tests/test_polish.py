@@ -15,15 +15,8 @@ from fusion.sim import LaserConfig, laser_scan, random_free_pose
 from houghloc import HoughConfig, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, wrap_angle
 from houghloc.map_lookup import wall_cells
-from houghloc.polish import (
-    MIN_CONDITION,
-    _candidate_rows,
-    _pair,
-    _solve_spd,
-    _well_conditioned,
-    build_wall_cells,
-    polish_pose,
-)
+from houghloc.polish import _candidate_rows, _pair, build_wall_cells, polish_pose
+from houghloc.subspace import MIN_CONDITION, solve_spd, well_conditioned
 from tests.conftest import MAPS
 
 EXACT = HoughConfig(line_rho_floor=0.0, line_theta_floor_deg=0.0)
@@ -196,7 +189,7 @@ def test_the_closed_form_condition_test_agrees_with_lapack(seed, k, condition_lo
     eig = np.linalg.eigvalsh(m)
     ratio = eig[0] / eig[-1]
     if abs(math.log10(max(ratio, 1e-300)) - math.log10(MIN_CONDITION)) > 0.5:
-        assert _well_conditioned(m) == (ratio > MIN_CONDITION)
+        assert well_conditioned(m) == (ratio > MIN_CONDITION)
 
 
 @settings(max_examples=200, deadline=None)
@@ -205,7 +198,7 @@ def test_the_closed_form_condition_test_agrees_with_lapack(seed, k, condition_lo
 def test_the_cholesky_step_solves_the_normal_equations(seed, k, condition_log10) -> None:
     m = _spd(seed, k, condition_log10)
     rhs = np.random.default_rng(seed + 1).normal(size=k)
-    x = _solve_spd(m, rhs)
+    x = solve_spd(m, rhs)
     expected = np.linalg.solve(m, rhs)
     # the forward error of a backward-stable solve: a few ε times the condition number, normwise
     error = np.linalg.norm(x - expected) / np.linalg.norm(expected)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from houghloc import MapError, SegmentMap
 from houghloc.geometry import ray_segment_distances
-from houghloc.segment_map import _first_hits_and_clearance, _ray_directions
+from houghloc.visibility import first_hits_and_clearance, ray_directions
 from tests.conftest import MAPS
 
 
@@ -93,7 +93,7 @@ def test_first_hits_only_try_the_rays_a_segment_spans(seed, n_rays, max_range, w
     expected = np.zeros(n, bool)
     first = np.argmin(t, axis=1)  # the first of equal distances, as the sweep keeps
     expected[first[np.isfinite(t.min(axis=1))]] = True
-    hit, _ = _first_hits_and_clearance(_ray_directions(n_rays), max_range, starts, ends,
+    hit, _ = first_hits_and_clearance(ray_directions(n_rays), max_range, starts, ends,
                                        float(origin[0]), float(origin[1]))
     assert np.array_equal(hit, expected)
 
