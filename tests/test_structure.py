@@ -163,3 +163,19 @@ def test_reading_a_config_loads_no_filter_or_manager():
     assert {"fusion.config", "fusion.settings.ambiguity"} <= loaded
     assert loaded <= {m for m in MODULES if m.startswith(SETTINGS + CONFIG_READERS)} | {
         "fusion", "fusion.config"}
+
+
+TOOLING = ("fusion.sim", "fusion.bench", "fusion.experiment")
+"""What builds and measures runs (the simulator, the benchmark, the experiments' helpers),
+not what localizes a robot."""
+APPLICATION = ("fusion.cli", "fusion.cli_parser", "fusion.__main__")
+"""The ``houghloc`` command: its subcommands run both the runtime and the tooling."""
+
+
+def test_the_runtime_imports_no_tooling():
+    """The filter, the manager, the readers, the recording and the ROS 2 node import nothing of
+    the simulator, the benchmark or the experiments: a robot runs without them."""
+    runtime = [m for m in MODULES if not m.startswith(TOOLING + APPLICATION)]
+    assert len(runtime) > 80
+    assert {m: sorted(t for t in GRAPH[m] if t.startswith(TOOLING))
+            for m in runtime if any(t.startswith(TOOLING) for t in GRAPH[m])} == {}
