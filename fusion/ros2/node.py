@@ -31,8 +31,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -47,34 +45,24 @@ from std_srvs.srv import Empty
 
 from fusion.config import LocalizerConfig
 from fusion.estimate import Estimate
-from fusion.events import Scan
 from fusion.io.rosbag import StaticTree, odometry_event, scan_event
 from fusion.localizer import Localizer
 from fusion.resources import find_config, find_map
 from fusion.ros2.messages import planar_covariance, planar_pose
 from fusion.ros2.odometry import OdometryBuffer
 from fusion.ros2.outputs import LATCHED, Outputs
-from fusion.ros2.saved_pose import load_pose, save_pose
+from fusion.ros2.saved_pose import save_pose
+from fusion.ros2.scan_queue import Pending, ScanQueue
 from fusion.ros2.settings import NodeSettings, declare, read
+from fusion.ros2.start import choose_start
 from fusion.ros2.tf2_msgs import available as tf2_msgs_available
 from fusion.visualize import Logger, NullLogger
 from houghloc import SegmentMap
 
 MAX_INITIAL_SIGMA_XY = 1.0e3
 """m: an initial pose's σ beyond this (a click that means "somewhere") is taken as this."""
-RVIZ_SIGMAS = (0.5, 0.5, math.radians(15.0))
-"""σ of x, y, yaw for a pose from parameters: RViz's 2D Pose Estimate default."""
-PENDING_SCANS = 10
-"""Scans held for odometry at most; beyond, the oldest is dropped (the node is behind)."""
 ODOMETRY_KEPT = 1000
 """Odometry readings kept to place map → odom at a scan's time: 10 s at 100 Hz."""
-
-
-@dataclass
-class _Pending:
-    scan: Scan
-    sensor: str
-    arrived: float  # monotonic s
 
 
 class LocalizerNode(LifecycleNode):
@@ -101,12 +89,17 @@ class LocalizerNode(LifecycleNode):
         self.outputs: Outputs | None = None
         self._active = False
         self._entities: list[Any] = []  # what configure made and cleanup destroys
+        self._pending = ScanQueue()
         self._reset_inputs()
-        self.dropped_scans = 0
         self.scans = 0
         if autostart:
             self.trigger_configure()
             self.trigger_activate()
+
+    @property
+    def dropped_scans(self) -> int:
+        """Scans dropped unlocalized because the queue waiting for the odometry was full."""
+        return self._pending.dropped
 
     @property
     def transform_tolerance(self) -> float:
@@ -116,7 +109,7 @@ class LocalizerNode(LifecycleNode):
         self._start_pose: NDArray[np.float64] | None = None
         self._start_cov: NDArray[np.float64] | None = None
         self._start_reason = "global localization"
-        self._pending: deque[_Pending] = deque()
+        self._pending.clear()
         self._odometry = OdometryBuffer(ODOMETRY_KEPT)
         self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
         self._static = StaticTree()
@@ -223,36 +216,11 @@ class LocalizerNode(LifecycleNode):
         self._reset_inputs()
 
     def _choose_start(self) -> None:
-        """Where the next Localizer starts, as AMCL on activation: the pose of the parameters
-        (``set_initial_pose``), else the one given on the command line, else the saved pose when
-        recent, else global localization."""
-        s = self.settings
+        """Where the next Localizer starts (:func:`fusion.ros2.start.choose_start`)."""
         self.localizer, self._last = None, None
-        self._start_pose = self._start_cov = None
-        self._start_reason = "global localization"
-        if s.set_initial_pose:
-            self._start_pose = np.array((s.initial_pose__x, s.initial_pose__y,
-                                         s.initial_pose__yaw))
-            self._start_cov = np.diag(np.square(RVIZ_SIGMAS))
-            self._start_reason = "initial pose from parameters"
-        elif self._given_pose is not None:
-            self._start_pose, self._start_reason = self._given_pose, "initial pose given"
-        elif s.initialize_at_saved_pose and s.saved_pose_filepath:
-            try:
-                saved = load_pose(s.saved_pose_filepath)
-            except ValueError as err:
-                self.get_logger().info(f"{err}: global localization")
-                return
-            if saved.frame != s.global_frame_id or saved.age() > s.houghloc__saved_pose_max_age:
-                self.get_logger().info(
-                    f"saved pose not used: {saved.age():.0f} s old in frame {saved.frame!r} "
-                    f"(houghloc.saved_pose_max_age {s.houghloc__saved_pose_max_age:g} s)")
-                return
-            # the robot may have moved while no node ran: the saved pose is a prior no better
-            # than an initial pose given, so its covariance has a given pose's added to it
-            self._start_pose = saved.pose
-            self._start_cov = saved.cov + np.asarray(self.config.filter.initial_cov)
-            self._start_reason = f"saved pose, {saved.age():.0f} s old"
+        start = choose_start(self.settings, self._given_pose, self.config.filter.initial_cov,
+                             self.get_logger().info)
+        self._start_pose, self._start_cov, self._start_reason = start.pose, start.cov, start.reason
 
     # ------------------------------------------------------------------------------ inputs
     def _on_odometry(self, msg: OdometryMsg) -> None:
@@ -273,10 +241,7 @@ class LocalizerNode(LifecycleNode):
         sensor = sensor or self.config.laser or "laser"
         scan = scan_event(msg, sensor, 0, self._angles)
         self._frames.setdefault(sensor, msg.header.frame_id.lstrip("/"))
-        if len(self._pending) == PENDING_SCANS:
-            self._pending.popleft()
-            self.dropped_scans += 1
-        self._pending.append(_Pending(scan, sensor, time.monotonic()))
+        self._pending.push(scan, sensor, time.monotonic())
         self._release(self._odometry.newest_time)
 
     def _on_tf_static(self, msg: Any) -> None:
@@ -343,17 +308,15 @@ class LocalizerNode(LifecycleNode):
     # --------------------------------------------------------------------------- localizing
     def _release_waiting(self) -> None:
         """Scans that waited ``odom_wait`` for odometry go on without it."""
-        now = time.monotonic()
-        while self._pending and now - self._pending[0].arrived >= \
-                self.settings.houghloc__odom_wait:
-            self._localize(self._pending.popleft())
+        for pending in self._pending.overdue(time.monotonic(), self.settings.houghloc__odom_wait):
+            self._localize(pending)
 
     def _release(self, odometry_time: float) -> None:
         """Scans the odometry has reached go through the localizer, oldest first."""
-        while self._pending and self._pending[0].scan.t <= odometry_time:
-            self._localize(self._pending.popleft())
+        for pending in self._pending.reached(odometry_time):
+            self._localize(pending)
 
-    def _localize(self, pending: _Pending) -> None:
+    def _localize(self, pending: Pending) -> None:
         if self.map is None:
             self._warn_once("no-map", f"no map yet: scans wait for one on "
                             f"{self.settings.map_topic} (or give --map)")
