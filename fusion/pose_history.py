@@ -97,8 +97,8 @@ class PoseHistory:
 
     def _restarted(self, x: NDArray[np.float64], p: NDArray[np.float64], t: float | None
                    ) -> tuple[deque[Node], tuple[float, NDArray[np.float64]] | None]:
-        """The history after a reset to (x, P) at t (see :meth:`reset`): the new nodes, and the
-        reading before them when t is later than every reading."""
+        """The history after a reset to (x, P) at t (see ``PoseTracker.reset``): the new nodes,
+        and the reading before them when t is later than every reading."""
         nodes = self._nodes
         newest = len(nodes) - 1 - self._tail
         if self._before is not None:  # still waiting for a reading after the oldest node
@@ -117,7 +117,7 @@ class PoseHistory:
             odom = self._split(nodes[j], nodes[j + 1], t)[0]
         kept: deque[Node] = deque([Node(t, odom, x, p, ZERO3, ZERO33)])
         # the readings after t keep their steps and noise (a scan-odometry correction's own,
-        # too), not their measurements; the first is re-split from t, as :meth:`apply` does
+        # too), not their measurements; the first is re-split from t, as ``PoseTracker.apply`` does
         for node in islice(nodes, j + 1, newest + 1):
             kept.append(Node(node.t, node.odom, None, None, node.step, node.step_q, node.jump))
         first_after = kept[1] if len(kept) > 1 else None
@@ -261,8 +261,8 @@ class PoseHistory:
 
     def _trim(self) -> None:
         """Forget nodes no longer needed to cover ``history_seconds`` before the newest node,
-        or the held node (:meth:`hold`) if older. The oldest kept node is the newest computed
-        one at or before that horizon, so trimming costs no prediction while estimates are
+        or the held node (``PoseTracker.hold``) if older. The oldest kept node is the newest
+        computed one at or before that horizon, so trimming costs no prediction while estimates are
         asked for (every scan asks); if none was asked for over a whole history (odometry
         alone), the node at the horizon is computed. If the odometry stalls for longer than the
         history, the oldest provisional node becomes the anchor for the next reading, so a

@@ -318,14 +318,13 @@ def metrics_document(result: ReplayResult, localizer: Localizer, read_stats: Rea
                            "scans": n, "events": result.events,
                            "interrupted": result.interrupted}
     doc.update((k, v) for k, v in own.items() if k not in ("initial_pose", "config"))
-    if read_stats is not None:  # the reader's stray stamps beside the localizer's
-        doc["stray_timestamps"] += read_stats.stray_timestamps
     doc["integrity"] = result.integrity()
     doc["seconds"] = {k: round(v, 6) for k, v in result.seconds.items()}
     doc["time_per_scan_ms"] = {
         k: round(1e3 * v / n, 4) for k, v in result.seconds.items() if n and k != "total"}
     doc["scans_per_second"] = _finite(result.scans_per_second)
-    if read_stats is not None:
+    if read_stats is not None:  # the reader's stray stamps beside the localizer's
+        doc["stray_timestamps"] += read_stats.stray_timestamps
         doc["log"] = {"records": read_stats.records, "skipped": read_stats.skipped,
                       "backwards_timestamps": read_stats.backwards_timestamps,
                       "stray_timestamps": read_stats.stray_timestamps,

