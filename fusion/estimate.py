@@ -4,7 +4,10 @@ what became of all of them so far (:class:`LocalizerStats`)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
+from time import perf_counter
 
 import numpy as np
 from numpy.typing import NDArray
@@ -61,6 +64,16 @@ class LocalizerStats:
     invalid_odometry: int = 0
     statuses: dict[str, int] = field(default_factory=dict)
     seconds: dict[str, float] = field(default_factory=lambda: {"hough": 0.0, "update": 0.0})
+    """wall time spent in each stage of the scans (metrics.json's ``seconds``)"""
+
+    @contextmanager
+    def timed(self, stage: str) -> Iterator[None]:
+        """Adds the wall time of the ``with`` block to ``seconds[stage]``."""
+        start = perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[stage] = self.seconds.get(stage, 0.0) + perf_counter() - start
 
     @property
     def tracked_fraction(self) -> float:

@@ -1,8 +1,8 @@
 """The streaming localizer: odometry predicts, Hough fixes correct (docs/architecture.md).
 
     on_odometry ─▶ tracker.predict                    (EKF, history for late data)
-    on_scan ─▶ points ─▶ guess at the scan's time ─▶ localize_scan ─▶ tracker.apply ─▶ estimate
-                 └─▶ (scan odometry: ICP to the previous scan ─▶ tracker.correct_odometry)
+    on_scan ─▶ points ─▶ admit ─▶ predict ─▶ localize ─▶ decide ─▶ apply ─▶ manage ─▶ estimate
+                           └─▶ (scan odometry: ICP to the previous scan ─▶ tracker.correct_odometry)
 
 Follow one scan: :meth:`Localizer.on_points` is the whole story.
 """
@@ -12,21 +12,21 @@ from __future__ import annotations
 import logging
 import math
 from pathlib import Path
-from time import perf_counter
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.ambiguity.manager import AmbiguityManager, Verdict
+from fusion.ambiguity.manager import AmbiguityManager
 from fusion.config import LocalizerConfig, SensorConfig
-from fusion.corridor import CorridorMeasurement, CorridorPlacement
+from fusion.corridor import CorridorMeasurement
+from fusion.decision import FixDecider, FixDecision, TrackingScan
 from fusion.ekf import UpdateOutcome
 from fusion.estimate import Estimate, LocalizerStats
 from fusion.events import MAX_POSE_COORDINATE
 from fusion.io.timing import MAX_TIME_STEP
 from fusion.motion import OdometryCalibration
-from fusion.points_fix import PointsFix, PointsMeasurement
+from fusion.points_fix import PointsMeasurement
 from fusion.scan_odometry import ScanOdometry
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
 from fusion.settings.hypotheses import HypothesisConfig
@@ -42,11 +42,6 @@ from houghloc.warm_up import warm_up
 
 log = logging.getLogger(__name__)
 LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them all
-_Use = tuple[ScanStatus, UpdateOutcome | None, CorridorMeasurement | None,
-             PointsMeasurement | None]
-"""what a tracking scan did to the filter: status, outcome, corridor placement, polished guess"""
-_POINTS_FIX_STATUSES = (ScanStatus.NO_FIX, ScanStatus.AMBIGUOUS, ScanStatus.MISFIT)
-"""the refusals of a fix after which the guess polished on the scan's points is offered"""
 
 
 class Localizer:
@@ -87,9 +82,8 @@ class Localizer:
             warm_up_scan_matching()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
                                         make_tracker=self._tracker_at)
-        self.corridor = CorridorPlacement(
-            self.manager.fit, self.config.ambiguity.hypotheses or HypothesisConfig())
-        self.points_fix = PointsFix(map, self.manager.fit)
+        self.decider = FixDecider(map, self.manager.fit,
+                                  self.config.ambiguity.hypotheses or HypothesisConfig())
         # the map's look-ups for global matching, now rather than on the scan that first needs
         # them (the angle index and distance transform of a building take tens of ms)
         for kinds in {s.hough.reference_kinds for s in self.config.sensors.values()}:
@@ -250,13 +244,43 @@ class Localizer:
     def on_points(self, t: float, points: ArrayLike, sensor: str = "camera") -> Estimate:
         """Points in the sensor frame taken at time ``t`` (possibly in the past): fuse them.
 
-        0. with scan odometry, the motion since the previous scan is corrected by matching them;
-        1. the estimate at ``t`` is the guess, its covariance sets the matching gates;
-        2. the Hough method turns the points into a pose fix with its covariance and rank;
-        3. an unambiguous fix updates the filter at ``t`` (late fixes re-propagate the odometry
-           since), gated by its normalised innovation; an ambiguous one is not used.
+        0. admit: the scan's stamp is checked against the odometry's clock, its points cleaned
+           and moved to the robot frame; with scan odometry, the motion since the previous scan
+           is corrected by matching them (:meth:`_admit`). Unless tracking, the scan is a view
+           for global localization (:meth:`_global_step`).
+        1. predict: the estimate at ``t`` is the guess; its covariance sets the matching gates;
+        2. localize: the Hough method turns the points into a pose fix with its covariance and
+           rank (:func:`houghloc.localize_scan`);
+        3. decide: whether the fix becomes a measurement, and which one
+           (:class:`fusion.decision.FixDecider`);
+        4. apply: the filter takes it at ``t`` (late ones re-propagate the odometry since),
+           gated by its normalised innovation;
+        5. manage: a local re-search where the scan fits worse than usual, the estimate, and
+           whether tracking is given up (:meth:`_manage`).
         """
         cfg = self._sensor(sensor)
+        admitted = self._admit(t, points, sensor, cfg)
+        if isinstance(admitted, Estimate):
+            return admitted  # a stray stamp: not used
+        if self.manager.state is not State.TRACKING:
+            self._forget_chord()
+            return self._global_step(t, admitted, sensor)
+        scan = self._predict(t, admitted, sensor, cfg)
+        if scan is None:
+            return self._finish(t, ScanStatus.DROPPED, None, None, sensor, admitted)
+        with self.stats.timed("hough"):
+            fix = localize_scan(scan.points, self.map, scan.guess, scan.hough,
+                                pose_cov=scan.guess_cov)
+        with self.stats.timed("update"):
+            decision = self.decider.decide(scan, fix)
+            status, outcome = self._apply_decision(scan, fix, decision)
+        return self._manage(scan, fix, decision, status, outcome)
+
+    def _admit(self, t: float, points: ArrayLike, sensor: str, cfg: SensorConfig
+               ) -> NDArray | Estimate:
+        """The scan's finite points in the robot frame within the sensor's range, after the
+        odometry it confirms and scan odometry's correction; or the estimate of a scan that
+        is not used (its stamp far ahead of the odometry)."""
         if self.stats.scans == 0:  # the recording starts with the state and why
             self.logger.log_state(t, self.manager.state.value, self._start_reason)
         self.stats.scans += 1
@@ -276,52 +300,70 @@ class Localizer:
             return self._finish(t if math.isfinite(t) else (clock or 0.0), ScanStatus.DROPPED, None,
                                 None, sensor, np.empty((0, 2)))
         # NaN/inf points are no returns; every stage below (scan odometry too) gets finite ones
-        points = clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0]
+        cleaned = clean_points(np.asarray(points, dtype=float).reshape(-1, 2))[0]
         # a point beyond the sensor's range is no measurement of it (and 1e300 would overflow
         # every stage after): the same rule as for a scan's ranges
-        points = _to_base(within_range(points, cfg.max_range), cfg)
+        cleaned = _to_base(within_range(cleaned, cfg.max_range), cfg)
         if self.scan_odometry is not None and sensor == self._scan_odometry_sensor:
-            self._correct_odometry(t, points)
-        if self.manager.state is not State.TRACKING:
-            self._forget_chord()
-            return self._global_step(t, points, sensor)
+            with self.stats.timed("scan odometry"):
+                self._correct_odometry(t, cleaned)
+        return cleaned
+
+    def _predict(self, t: float, points: NDArray, sensor: str, cfg: SensorConfig
+                 ) -> TrackingScan | None:
+        """The scan as the stages after the prediction see it: the filter's guess at ``t`` with
+        its covariance (None when the filter has no pose at ``t``)."""
         prior = self.tracker.pose_at(t)
         if prior is None:
-            return self._finish(t, ScanStatus.DROPPED, None, None, sensor, points)
-        guess, guess_cov = prior
-        t0 = perf_counter()
-        fix = localize_scan(points, self.map, guess, cfg.hough, pose_cov=guess_cov)
-        t1 = perf_counter()
-        self.stats.seconds["hough"] += t1 - t0
-        kinds = cfg.hough.reference_kinds
-        verdict = self.manager.judge(guess, fix, points, kinds, cfg.min_fix_lines)
-        status, outcome, along, by_points = self._use_fix(t, fix, verdict, guess_cov, points,
-                                                          cfg)
-        if (self.wheel_scale is not None and outcome is not None and outcome.accepted
-                and fix.rank == 3 and along is None and by_points is None):
-            self.wheel_scale.on_fix(t, fix.pose, fix.cov)  # a full fix: a chord's end
-        t2 = perf_counter()
-        self.stats.seconds["update"] += t2 - t1
+            return None
         scans_broke = (self.scan_odometry is not None and sensor == self._scan_odometry_sensor
                        and self.scan_odometry.broke)
-        decision = self.manager.re_search(t, status, verdict, guess, guess_cov, points, fix,
-                                          kinds, cfg.hough, lambda: self.tracker.odometry_at(t),
-                                          scans_broke)
-        if decision is not None:
-            self.stats.seconds["local"] = (self.stats.seconds.get("local", 0.0)
-                                           + perf_counter() - t2)
-            if (decision.reset_pose is not None and decision.reset_cov is not None
-                    and self.tracker.reset(decision.reset_pose, decision.reset_cov, t)):
-                status, outcome, along, by_points = ScanStatus.RE_SEARCHED, None, None, None
-                self._forget_chord()
-        estimate = self._finish(t, status, fix, outcome, sensor, points, along=along,
+        return TrackingScan(t, points, sensor, cfg.hough, cfg.min_fix_lines, prior[0], prior[1],
+                            scans_broke)
+
+    def _apply_decision(self, scan: TrackingScan, fix: ScanCorrection, decision: FixDecision
+                        ) -> tuple[ScanStatus, UpdateOutcome | None]:
+        """Offer the decision's measurement to the filter: the scan's status (the filter's
+        outcome's for a used fix, the verdict's otherwise) and the outcome (None when nothing
+        was offered). A full fix accepted as it is ends a chord of the wheels' scale."""
+        verdict, measurement = decision.verdict, decision.measurement
+        outcome = (None if measurement is None else
+                   self._apply(scan.t, measurement.pose, measurement.cov, measurement.basis))
+        if not verdict.use:
+            assert verdict.status is not None
+            self.stats.points_fixes += decision.by_points is not None
+            return verdict.status, outcome
+        assert outcome is not None  # a used fix is always offered
+        self.stats.placed_along += decision.along is not None
+        self.stats.partial_rank += decision.partial
+        if (self.wheel_scale is not None and outcome.accepted and fix.rank == 3
+                and decision.along is None):
+            self.wheel_scale.on_fix(scan.t, fix.pose, fix.cov)  # a full fix: a chord's end
+        return ScanStatus(outcome.status), outcome
+
+    def _manage(self, scan: TrackingScan, fix: ScanCorrection, decision: FixDecision,
+                status: ScanStatus, outcome: UpdateOutcome | None) -> Estimate:
+        """The manager's turn after the filter's: a local re-search where the scan fits worse
+        than usual (its pose re-initialises the filter), then the estimate, then whether
+        tracking is given up."""
+        t, verdict = scan.t, decision.verdict
+        along, by_points = decision.along, decision.by_points
+        with self.stats.timed("local"):
+            re_searched = self.manager.re_search(scan, status, verdict, fix,
+                                                 lambda: self.tracker.odometry_at(t))
+        if (re_searched is not None and re_searched.reset_pose is not None
+                and re_searched.reset_cov is not None
+                and self.tracker.reset(re_searched.reset_pose, re_searched.reset_cov, t)):
+            status, outcome, along, by_points = ScanStatus.RE_SEARCHED, None, None, None
+            self._forget_chord()
+        estimate = self._finish(t, status, fix, outcome, scan.sensor, scan.points, along=along,
                                 by_points=by_points)
         refs = fix.references
         # the manager gives tracking up here, when the scans stop giving usable fixes
         self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
                                    self.tracker.odometry_at(t),
                                    None if refs is None else (refs.theta, refs.rho),
-                                   verdict.guess_fit, points, kinds)
+                                   verdict.guess_fit, scan.points, scan.kinds)
         return estimate
 
     def _forget_chord(self) -> None:
@@ -331,7 +373,6 @@ class Localizer:
 
     def _correct_odometry(self, t: float, points: NDArray) -> None:
         """The odometry at the scan corrected by matching it to the previous scan."""
-        t0 = perf_counter()
         scan_odometry = self.scan_odometry
         assert scan_odometry is not None  # called only with scan odometry on
         correction = scan_odometry.match(t, points)
@@ -348,55 +389,6 @@ class Localizer:
         # its history back to here
         since = scan_odometry.reference_time
         self.tracker.hold(since, since + self.config.scan_odometry.max_interval)
-        self.stats.seconds["scan odometry"] = (self.stats.seconds.get("scan odometry", 0.0)
-                                               + perf_counter() - t0)
-
-    def _use_fix(self, t: float, fix: ScanCorrection, verdict: Verdict, guess_cov: NDArray,
-                 points: NDArray, cfg: SensorConfig) -> _Use:
-        """Update the filter with a tracking fix when the manager's ``verdict`` says it can be
-        trusted (a corridor fix placed along its corridor by the scan's points where they
-        can), else with the guess polished on the scan's points where they pin it; the status,
-        the filter's outcome (None when nothing was offered), the placement along the corridor
-        and the polished guess (each None when there was none)."""
-        if not verdict.use:
-            return self._use_points(t, fix, verdict, guess_cov, points, cfg)
-        pose, cov = fix.pose, fix.cov
-        # a full fix measures the whole pose (H = I), whatever the order of its basis's columns
-        basis: NDArray | None = fix.observable if fix.rank < 3 else None
-        along = self.corridor.complete(fix, guess_cov, points, cfg.hough)
-        if along is not None:
-            pose, cov, basis = along.pose, along.cov, None
-            self.stats.placed_along += 1
-        outcome = self._apply(t, pose, cov, basis)
-        self.stats.partial_rank += fix.rank < 3
-        return ScanStatus(outcome.status), outcome, along, None
-
-    def _use_points(self, t: float, fix: ScanCorrection, verdict: Verdict, guess_cov: NDArray,
-                    points: NDArray, cfg: SensorConfig) -> _Use:
-        """Where the manager's ``verdict`` refused the lines' fix (no fix, ambiguous, misfit),
-        the guess polished on the scan's points updates the filter instead when they pin it
-        (:mod:`fusion.points_fix`): the verdict's status, the filter's outcome and the
-        measurement (None when none was offered)."""
-        assert verdict.status is not None
-        if verdict.status not in _POINTS_FIX_STATUSES:
-            return verdict.status, None, None, None
-        # a misfit's lines matched; it was refused for where it puts the scan against recent
-        # fits. Where it still puts more of the scan on walls than the guess does, the polish
-        # starts there (a guess far off in a fast turn pairs too few points to come back).
-        # A fix refused for its lines (too few, or fitting two places) is no place to start.
-        better = (verdict.status is ScanStatus.MISFIT and verdict.fix_fit is not None
-                  and verdict.guess_fit is not None and verdict.fix_fit > verdict.guess_fit)
-        found = self.points_fix.measure(fix.guess, guess_cov, points, cfg.hough,
-                                        verdict.guess_fit, fix.pose if better else None)
-        if found is None:
-            return verdict.status, None, None, None
-        outcome = self._apply(t, found.pose, found.cov, None)
-        self.stats.points_fixes += 1
-        # the scan keeps the verdict's status: the manager still counts it as a scan without a
-        # usable fix. The points refine the pose near the guess; they cannot vouch that the
-        # guess is the right place, and a wrong pose polished onto nearby walls must still be
-        # given up.
-        return verdict.status, outcome, None, found
 
     def _apply(self, t: float, pose: NDArray, cov: NDArray, basis: NDArray | None
                ) -> UpdateOutcome:
@@ -425,10 +417,9 @@ class Localizer:
         if odom is None:  # no odometry yet: views cannot be related, wait for it
             return self._finish(t, ScanStatus.of_state(self.manager.state), None, None, sensor,
                                 points)
-        t0 = perf_counter()
-        kinds = self._sensor(sensor).hough.reference_kinds
-        decision = self.manager.collecting_step(t, odom, points, kinds, self._sensor(sensor).hough)
-        self.stats.seconds["global"] = self.stats.seconds.get("global", 0.0) + perf_counter() - t0
+        hough = self._sensor(sensor).hough
+        with self.stats.timed("global"):
+            decision = self.manager.collecting_step(t, odom, points, hough.reference_kinds, hough)
         if decision.reset_pose is not None and decision.reset_cov is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov, t)
             return self._finish(t, ScanStatus.RELOCALIZED, None, None, sensor, points)

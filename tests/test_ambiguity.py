@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from fusion import Localizer, LocalizerConfig
 from fusion.ambiguity.manager import AmbiguityManager
 from fusion.ambiguity.spacing import visible_parallel_spacing
+from fusion.decision import TrackingScan
 from fusion.events import Odometry, PointSet, Scan
 from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.sim import (
@@ -231,31 +232,6 @@ def test_fit_judges_fixes_the_matcher_cannot(office):
     assert manager.state is State.COLLECTING
 
 
-@pytest.mark.parametrize("clutter, used", [(0, True), (300, False)])
-def test_a_fix_the_scan_vouches_for_must_still_fit_like_recent_ones(office, clutter, used):
-    """One wall in view (the y = 7 wall, 1 m to the left): the matcher cannot vouch for a
-    one-line fix, and the guess, 0.3 m off that wall, has no point on it. The fix puts the
-    wall's points on it: with nothing else in view that is the whole scan, and it is used; among
-    300 points that lie on no wall it is a sixth of the scan, against 0.9 for recent fixes, and
-    it is a misfit like any other fix that leaves the scan off the walls."""
-    rng = np.random.default_rng(4)
-    truth = np.array([5.0, 6.0, 0.0])
-    wall = np.column_stack((np.linspace(-3.0, 0.8, 60), np.full(60, 1.0)))  # short of a door
-    room = rng.uniform(-1.0, 1.0, (clutter, 2)) * [3.0, 0.35] + [0.0, 0.05]  # off its walls
-    points = np.concatenate((wall, room))
-    manager = AmbiguityManager(office, AmbiguityConfig())
-    manager.fit.used.extend([0.9] * 5)  # recent fixes put nine tenths of their scans on walls
-    guess = truth + [0.0, -0.3, 0.0]
-    fix = localize_scan(points, office, guess, HoughConfig(),
-                        pose_cov=np.diag([0.2**2, 0.2**2, math.radians(2.0) ** 2]))
-    assert fix.rank == 2 and len(fix.matches) == 1 and abs(fix.pose[1] - truth[1]) < 0.05
-    verdict = manager.judge(guess, fix, points, ("wall",), min_lines=2)
-    assert verdict.guess_fit == 0.0 and verdict.fix_fit is not None
-    assert verdict.fix_fit >= 0.03 and manager.counts["fixes_by_fit"] == 1
-    assert verdict.use is used
-    assert verdict.status is (None if used else ScanStatus.MISFIT)
-
-
 @pytest.mark.parametrize("slip", [(0.0, 0.0, 12.0), (0.0, 0.0, -16.0), (0.29, 0.09, 14.0)])
 def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
     """The odometry reports a turn of 12-16° that the robot did not make (a wheel slip in a turn
@@ -351,8 +327,8 @@ def test_local_search_turns_as_far_as_the_guess_is_uncertain(office, sigma_deg, 
     guess_cov = np.diag([0.1**2, 0.1**2, math.radians(sigma_deg) ** 2])
     fix = localize_scan(points, office, guess, HoughConfig(), pose_cov=guess_cov)
     guess_fit = manager.fit.fraction(guess, points)
-    decision = manager.local_search(5.0, guess, points, fix, ("wall",), guess_fit, HoughConfig(),
-                                    None, guess_cov)
+    scan = TrackingScan(5.0, points, "laser", HoughConfig(), 2, guess, guess_cov)
+    decision = manager.local_search(scan, fix, guess_fit, None)
     if found:
         assert decision.reset_pose is not None
         error = decision.reset_pose - truth

@@ -39,7 +39,8 @@ from numpy.typing import NDArray
 from fusion.ambiguity.fit import ScanFit
 from fusion.ambiguity.local_search import LocalSearch
 from fusion.ambiguity.relocalization import Decision, Relocalization, reinit_floor
-from fusion.ambiguity.tracking import Belief, TrackingWatch, Verdict
+from fusion.ambiguity.tracking import Belief, TrackingWatch
+from fusion.decision import TrackingScan, Verdict
 from fusion.hypotheses import MakeTracker
 from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.status import ScanStatus, State
@@ -50,7 +51,7 @@ from houghloc.global_match import prepare_map
 from houghloc.jit import one_blas_thread
 from houghloc.matching import gate_threshold
 
-__all__ = ["AmbiguityManager", "Decision", "Transition", "Verdict"]
+__all__ = ["AmbiguityManager", "Decision", "Transition"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,8 +66,8 @@ class Transition:
 class AmbiguityManager:
     """The state machine between tracking and global localization (module docstring).
 
-    Its states' work is done by its parts: while tracking, :class:`TrackingWatch` (the verdict
-    on each fix, the evidence for giving tracking up) and :class:`LocalSearch` (a pose near the
+    Its states' work is done by its parts: while tracking, :class:`TrackingWatch` (the
+    evidence for giving tracking up) and :class:`LocalSearch` (a pose near the
     guess after a slip); otherwise :class:`Relocalization` (views, global matches, followed
     hypotheses or ties). What is left here is every transition and what it resets, so that the
     state machine reads in one place (:meth:`_go`)."""
@@ -112,29 +113,20 @@ class AmbiguityManager:
             bank.correct_odometry(t, pose, since, step_cov)
 
     # ------------------------------------------------------------------ tracking
-    def judge(self, guess: NDArray, fix: ScanCorrection, points: NDArray,
-              kinds: tuple[str, ...], min_lines: int) -> Verdict:
-        """Should the filter be offered this tracking fix (:meth:`TrackingWatch.judge`)?"""
-        return self.watch.judge(guess, fix, points, kinds, min_lines)
-
-    def re_search(self, t: float, status: ScanStatus, verdict: Verdict, guess: NDArray,
-                  guess_cov: NDArray, points: NDArray, fix: ScanCorrection,
-                  kinds: tuple[str, ...], hough: HoughConfig,
-                  odometry: Callable[[], NDArray | None], scans_broke: bool = False
-                  ) -> Decision | None:
+    def re_search(self, scan: TrackingScan, status: ScanStatus, verdict: Verdict,
+                  fix: ScanCorrection, odometry: Callable[[], NDArray | None]) -> Decision | None:
         """After a tracking scan's update (``status``): when the scan fits worse than usual (at
         the guess if no fix was accepted, at the fix if one was), the local search near the
-        guess (:meth:`local_search`; its heading reach grows with ``guess_cov``), bounded by
-        the motion since the last accepted fix (``odometry()``: the odometry at the scan, asked
-        only then); None when none was wanted."""
+        guess (:meth:`local_search`), bounded by the motion since the last accepted fix
+        (``odometry()``: the odometry at the scan, asked only then); None when none was
+        wanted."""
         guess_fit = verdict.guess_fit
         fix_fit = verdict.fix_fit if status == ScanStatus.ACCEPTED else None
         if guess_fit is None or not self.wants_local_search(guess_fit, fix_fit):
             return None
         # tracking failed and the prediction no longer fits: the odometry slipped, or
         # reported a motion the robot did not make. Look for the pose near it first.
-        return self.local_search(t, guess, points, fix, kinds, max(guess_fit, fix_fit or 0.0),
-                                 hough, odometry(), guess_cov, scans_broke)
+        return self.local_search(scan, fix, max(guess_fit, fix_fit or 0.0), odometry())
 
     def wants_local_search(self, guess_fit: float | None, fix_fit: float | None = None) -> bool:
         """Is a local re-search on, and does the scan fit worse than usual
@@ -145,14 +137,13 @@ class AmbiguityManager:
         return self.fit.worse_than_usual(guess_fit, fix_fit)
 
     @one_blas_thread  # global matching's arrays: see one_blas_thread
-    def local_search(self, t: float, guess: NDArray, points: NDArray, fix: ScanCorrection,
-                     kinds: tuple[str, ...], guess_fit: float, hough: HoughConfig,
-                     odom: NDArray | None, guess_cov: NDArray | None = None,
-                     scans_broke: bool = False) -> Decision:
-        """The pose near ``guess`` that the scan fits (:class:`LocalSearch`), within reach of
-        the odometry ``odom``'s motion since the last accepted fix: it re-initialises the
-        filter."""
-        found = self._local.find(guess, points, fix, kinds, guess_fit, hough,
+    def local_search(self, scan: TrackingScan, fix: ScanCorrection, guess_fit: float,
+                     odom: NDArray | None) -> Decision:
+        """The pose near the scan's guess that the scan fits (:class:`LocalSearch`; its heading
+        reach grows with the guess's covariance), within reach of the odometry ``odom``'s
+        motion since the last accepted fix: it re-initialises the filter."""
+        t, guess, guess_cov, hough = scan.t, scan.guess, scan.guess_cov, scan.hough
+        found = self._local.find(guess, scan.points, fix, scan.kinds, guess_fit, hough,
                                  self.belief.moved_since_trusted(odom), guess_cov)
         if found.pose is None or found.cov is None:
             return Decision(result=found.result)
@@ -163,7 +154,7 @@ class AmbiguityManager:
                 f"{math.degrees(wrap_scalar(shift[2])):.1f}°; {found.fit:.2f} of the points on "
                 f"walls (guess {guess_fit:.2f})"))
         cov = 0.5 * (found.cov + found.cov.T) + reinit_floor(self.config)
-        carried = scans_broke and self._unexplained(shift, guess_cov, hough)
+        carried = scan.scans_broke and self._unexplained(shift, guess_cov, hough)
         if (carried or found.along_kept) and (
                 odom is not None and self.config.hypotheses is not None):
             # The search explains a motion the odometry did not report, and the neighbourhood

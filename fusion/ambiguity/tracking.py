@@ -1,9 +1,9 @@
-"""While tracking: may the filter use this fix, and is it time to give tracking up?
+"""While tracking: is it time to give tracking up?
 
-:class:`TrackingWatch` judges each fix by the scan's fit on the walls (:class:`ScanFit`) and
-keeps the evidence against the belief; the state machine (:mod:`fusion.ambiguity.manager`)
-acts on what it says. :class:`Belief` is what tracking last believed: global localization
-weighs its poses against it.
+:class:`TrackingWatch` keeps the evidence against the belief, from the scans without a usable
+fix (whether a fix is usable is decided in :mod:`fusion.decision`); the state machine
+(:mod:`fusion.ambiguity.manager`) acts on what it says. :class:`Belief` is what tracking last
+believed: global localization weighs its poses against it.
 """
 
 from __future__ import annotations
@@ -22,20 +22,8 @@ from fusion.ambiguity.spacing import (
 )
 from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.status import ScanStatus
-from houghloc import ScanCorrection, SegmentMap
+from houghloc import SegmentMap
 from houghloc.geometry import compose, relative
-
-
-@dataclass(frozen=True, slots=True)
-class Verdict:
-    """The manager's word on a tracking fix, before the filter sees it: ``use`` it, or not and
-    why (``status``). ``guess_fit``/``fix_fit``: the fractions of the scan's points on walls at
-    the guess and at the fix (None when no check wanted them)."""
-
-    use: bool
-    status: ScanStatus | None = None
-    guess_fit: float | None = None
-    fix_fit: float | None = None
 
 
 @dataclass
@@ -68,8 +56,8 @@ class Belief:
 
 
 class TrackingWatch:
-    """The verdict on each tracking fix, and the evidence for giving tracking up: scans without
-    a usable fix that contradict the belief, or a covariance too large for the lines in view."""
+    """The evidence for giving tracking up: scans without a usable fix that contradict the
+    belief, or a covariance too large for the lines in view."""
 
     def __init__(self, map: SegmentMap, config: AmbiguityConfig, fit: ScanFit,
                  belief: Belief) -> None:
@@ -82,35 +70,6 @@ class TrackingWatch:
         self.evidence_against = 0.0
         """The share of the evidence that gives tracking up gathered since the last usable
         fix, in [0, 1): what the integrity output holds against the belief while tracking."""
-
-    def judge(self, guess: NDArray, fix: ScanCorrection, points: NDArray,
-              kinds: tuple[str, ...], min_lines: int) -> Verdict:
-        """Should the filter be offered this tracking fix? One the matcher vouches for (not
-        ambiguous, of rank > 0, at least ``min_lines`` lines matched) is, and one it cannot
-        vouch for is when the scan itself does (:meth:`ScanFit.fix_gains`: the odometry slipped
-        in a turn); either only if it keeps the scan on the walls about as well as recent fixes
-        did (:meth:`ScanFit.fix_fits`: the robot is elsewhere, or the lines were matched to the
-        wrong walls, however small the innovation). A few more points on walls than a guess
-        that has none does not vouch for a fix that leaves the scan off them."""
-        fit = self.fit
-        # the fractions of the scan on walls at the guess and at the fix, once (in one pass),
-        # for every check that wants them
-        want_guess = fit.judges_by_fit
-        want_fix = fix.rank > 0 and (fit.judges_fixes or want_guess)
-        wanted = [pose for pose, want in ((guess, want_guess), (fix.pose, want_fix)) if want]
-        fits = fit.fractions(np.array(wanted), points, kinds).tolist() if wanted else []
-        guess_fit = fits.pop(0) if want_guess else None
-        fix_fit = fits.pop(0) if want_fix else None
-        matched = 0 if fix.matches is None else len(fix.matches)
-        vouched = not fix.ambiguous and fix.rank > 0 and matched >= min_lines
-        by_fit = (not vouched and fix.rank > 0
-                  and fit.fix_gains(fix.pose, points, kinds, guess_fit, fix_fit))
-        if not (vouched or by_fit):
-            status = ScanStatus.AMBIGUOUS if fix.ambiguous else ScanStatus.NO_FIX
-            return Verdict(False, status, guess_fit, fix_fit)
-        if not fit.fix_fits(fix.pose, points, kinds, guess_fit, fix_fit):
-            return Verdict(False, ScanStatus.MISFIT, guess_fit, fix_fit)
-        return Verdict(True, None, guess_fit, fix_fit)
 
     def give_up_reason(self, status: ScanStatus, cov: NDArray, pose: NDArray | None,
                        odom: NDArray | None, in_view: tuple[NDArray, NDArray] | None,
