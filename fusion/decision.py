@@ -33,6 +33,7 @@ from fusion.settings.hypotheses import HypothesisConfig
 from fusion.status import ScanStatus
 from houghloc import HoughConfig, ScanCorrection, SegmentMap
 
+
 @dataclass(frozen=True, slots=True)
 class TrackingScan:
     """One scan while tracking, as every stage after the prediction sees it: its time, its

@@ -28,7 +28,7 @@ from fusion.sim import (
 )
 from fusion.sim.routes import OFFICE_LOOP
 from fusion.sim.run import interpolate_poses
-from fusion.status import ScanStatus, State
+from fusion.status import State
 from houghloc import HoughConfig, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points
 from tests.conftest import REPO

@@ -45,6 +45,7 @@ from std_srvs.srv import Empty
 
 from fusion.config import LocalizerConfig
 from fusion.estimate import Estimate
+from fusion.events import Scan
 from fusion.io.rosbag import StaticTree, odometry_event, scan_event
 from fusion.localizer import Localizer
 from fusion.resources import find_config, find_map
@@ -52,10 +53,10 @@ from fusion.ros2.messages import planar_covariance, planar_pose
 from fusion.ros2.odometry import OdometryBuffer
 from fusion.ros2.outputs import LATCHED, Outputs
 from fusion.ros2.saved_pose import save_pose
-from fusion.ros2.scan_queue import Pending, ScanQueue
 from fusion.ros2.settings import NodeSettings, declare, read
 from fusion.ros2.start import GLOBAL, Start, choose_start
 from fusion.ros2.tf2_msgs import available as tf2_msgs_available
+from fusion.time_order import Held, TimeOrder
 from fusion.visualize import Logger, NullLogger
 from houghloc import SegmentMap
 
@@ -89,17 +90,14 @@ class LocalizerNode(LifecycleNode):
         self.outputs: Outputs | None = None
         self._active = False
         self._entities: list[Any] = []  # what configure made and cleanup destroys
-        self._pending = ScanQueue()
+        self._order = TimeOrder()
         self._reset_inputs()
         self.scans = 0
+        self.dropped_scans = 0
+        """scans that could not be localized: no map yet, or no sensor could take them"""
         if autostart:
             self.trigger_configure()
             self.trigger_activate()
-
-    @property
-    def dropped_scans(self) -> int:
-        """Scans dropped unlocalized because the queue waiting for the odometry was full."""
-        return self._pending.dropped
 
     @property
     def transform_tolerance(self) -> float:
@@ -107,7 +105,7 @@ class LocalizerNode(LifecycleNode):
 
     def _reset_inputs(self) -> None:
         self._begin: Start = GLOBAL  # where the next Localizer starts, and why
-        self._pending.clear()
+        self._order.clear()
         self._odometry = OdometryBuffer(ODOMETRY_KEPT)
         self._angles: dict[tuple[int, float, float], NDArray[np.float64]] = {}
         self._static = StaticTree()
@@ -118,6 +116,7 @@ class LocalizerNode(LifecycleNode):
     # ------------------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         s = self.settings = read(self)
+        self._order = TimeOrder(s.houghloc__odom_wait)
         try:
             self.config = self._given_config or LocalizerConfig.from_yaml(
                 find_config(s.houghloc__config) if s.houghloc__config else None)
@@ -229,7 +228,7 @@ class LocalizerNode(LifecycleNode):
         self._odometry.append(event.t, event.x, event.y, event.theta)
         if self.localizer is not None and self._active:
             self.localizer.on_odometry(event.t, event.x, event.y, event.theta)
-        self._release(event.t)
+        self._localize(self._order.odometry(event.t))
 
     def _on_scan(self, msg: LaserScan, sensor: str | None = None) -> None:
         """A scan of ``sensor`` (the config's laser, or the i-th of ``houghloc.scan_topics``)."""
@@ -238,8 +237,7 @@ class LocalizerNode(LifecycleNode):
         sensor = sensor or self.config.laser or "laser"
         scan = scan_event(msg, sensor, 0, self._angles)
         self._frames.setdefault(sensor, msg.header.frame_id.lstrip("/"))
-        self._pending.push(scan, sensor, time.monotonic())
-        self._release(self._odometry.newest_time)
+        self._localize(self._order.measurement(scan, time.monotonic()))
 
     def _on_tf_static(self, msg: Any) -> None:
         for tf in msg.transforms:
@@ -304,30 +302,31 @@ class LocalizerNode(LifecycleNode):
 
     # --------------------------------------------------------------------------- localizing
     def _release_waiting(self) -> None:
-        """Scans that waited ``odom_wait`` for odometry go on without it."""
-        for pending in self._pending.overdue(time.monotonic(), self.settings.houghloc__odom_wait):
-            self._localize(pending)
+        """Scans that waited ``odom_wait`` of wall time for the odometry go on without it."""
+        self._localize(self._order.overdue(time.monotonic()))
 
-    def _release(self, odometry_time: float) -> None:
-        """Scans the odometry has reached go through the localizer, oldest first."""
-        for pending in self._pending.reached(odometry_time):
-            self._localize(pending)
+    def _localize(self, due: list[Held]) -> None:
+        """The scans whose time has come (:class:`fusion.time_order.TimeOrder`), oldest first."""
+        for held in due:
+            assert isinstance(held.event, Scan)  # the node holds nothing else
+            self._localize_scan(held.event)
 
-    def _localize(self, pending: Pending) -> None:
+    def _localize_scan(self, scan: Scan) -> None:
         if self.map is None:
-            self._warn_once("no-map", f"no map yet: scans wait for one on "
+            self.dropped_scans += 1
+            self._warn_once("no-map", f"no map yet: scans are dropped until one comes on "
                             f"{self.settings.map_topic} (or give --map)")
             return
-        if self.localizer is not None and pending.sensor not in self.localizer.config.sensors:
+        if self.localizer is not None and scan.sensor not in self.localizer.config.sensors:
             # a laser heard for the first time: go on from the estimate with its mount known
-            self._restart(*self._current(), f"laser {pending.sensor} added")
+            self._restart(*self._current(), f"laser {scan.sensor} added")
         if self.localizer is None:
-            self.localizer = self._start(pending.scan.t)
-        scan = pending.scan
+            self.localizer = self._start(scan.t)
         try:
-            estimate = self.localizer.on_scan(scan.t, scan.ranges, scan.angles, pending.sensor,
+            estimate = self.localizer.on_scan(scan.t, scan.ranges, scan.angles, scan.sensor,
                                               scan.max_range)
         except (ValueError, KeyError) as err:  # e.g. a scan no sensor could take
+            self.dropped_scans += 1
             self.get_logger().warning(f"scan at {scan.t:.3f} dropped: {err}")
             return
         self.scans += 1

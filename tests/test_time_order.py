@@ -1,0 +1,119 @@
+"""When each measurement meets the filter (fusion/time_order.py), without ROS: what leaves, in
+which order, and when. The replay and the ROS 2 node share this owner; that they give the same
+poses on the same stream is tested in tests/test_ros2_node.py."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+
+from fusion.events import Scan
+from fusion.io.timing import MAX_TIME_STEP
+from fusion.time_order import Held, TimeOrder
+
+EMPTY = np.zeros(0)
+
+
+def scan(t: float, number: int) -> Scan:
+    return Scan(t, EMPTY, EMPTY, sensor=str(number))  # the sensor name numbers the arrival
+
+
+# an input stream: ("scan", stamp), ("odometry", stamp) or ("tick", seconds of wall time)
+_STAMP = st.one_of(st.floats(0.0, 10.0), st.sampled_from([math.nan, math.inf, 100.0]))
+_STEP = st.one_of(st.tuples(st.just("scan"), _STAMP),
+                  st.tuples(st.just("odometry"), st.floats(0.0, 10.0)),
+                  st.tuples(st.just("tick"), st.floats(0.0, 0.5)))
+
+
+class _Stream:
+    """What the stream has shown so far, kept by the test itself: the law's terms."""
+
+    def __init__(self) -> None:
+        self.odometry: float | None = None
+        self.clock = -math.inf
+
+    def plausible(self, t: float) -> bool:
+        return math.isfinite(t) and (self.odometry is None or t - self.odometry <= MAX_TIME_STEP)
+
+    def due(self, t: float, wait: float) -> bool:
+        """May a measurement stamped t go on without waiting longer for the odometry?"""
+        return (self.odometry is None or not self.plausible(t) or t <= self.odometry
+                or t + wait <= self.clock)
+
+
+@given(st.lists(_STEP, max_size=60), st.integers(1, 5), st.floats(0.0, 1.0))
+def test_measurements_leave_in_arrival_order_once_and_only_when_due(steps, size, wait):
+    """Every measurement leaves once, in the order it came, and only when due: the odometry has
+    reached its stamp, the stream's clock is ``wait`` past it, no odometry has come, its stamp
+    cannot be reached (not finite, or a stray far ahead), the queue was full (the oldest only),
+    it waited ``wait`` of wall time, or the stream ended. After every input the oldest still
+    held is not due: nothing waits longer than the rules say. At most ``size`` are held."""
+    order, stream = TimeOrder(wait, size), _Stream()
+    now, arrived, left = 0.0, 0, []  # left: arrival numbers, in the order they left
+
+    def leave(due: list[Held], pushed_out: int = 0) -> None:
+        for k, held in enumerate(due):
+            if k >= pushed_out:
+                assert stream.due(held.event.t, wait)
+            left.append(int(held.event.sensor))
+
+    for kind, value in steps:
+        if kind == "scan":
+            full = arrived - len(left) == size
+            due = order.measurement(scan(value, arrived), now)
+            arrived += 1
+            if stream.plausible(value):
+                stream.clock = max(stream.clock, value)
+            leave(due, pushed_out=int(full))
+        elif kind == "odometry":
+            stream.odometry = value if stream.odometry is None else max(stream.odometry, value)
+            stream.clock = max(stream.clock, value)
+            leave(order.odometry(value))
+        else:
+            now += value
+            due = order.overdue(now)
+            assert all(now - held.arrived >= wait for held in due)
+            left.extend(int(held.event.sensor) for held in due)
+        assert len(order) == arrived - len(left) <= size
+        oldest = order.oldest
+        if oldest is not None:  # not due by the data, nor by the wall clock after a tick
+            assert not stream.due(oldest.event.t, wait)
+            assert kind != "tick" or now - oldest.arrived < wait
+    held = len(order)
+    leave(order.drain(), pushed_out=held)  # the stream ended: every one goes on
+    assert left == list(range(arrived))  # in arrival order, each once
+    assert len(order) == 0
+
+
+def test_a_scan_ahead_of_the_odometry_holds_the_ones_behind_it():
+    """The odometry at 0.55 s releases the scan at 0.5 s, not the one at 0.7 s, nor the one at
+    0.6 s that came after it: measurements leave in their arrival order. The stream's clock
+    releases the one at 3.0 s when a scan stamped 3.25 s (``wait`` later) arrives, and the wall
+    clock the one at 3.25 s after 0.25 s."""
+    order = TimeOrder(wait=0.25)
+    order.odometry(0.45)
+    for k, t in enumerate((0.5, 0.7, 0.6)):
+        assert order.measurement(scan(t, k)) == []
+    assert [h.event.t for h in order.odometry(0.55)] == [0.5]
+    assert [h.event.t for h in order.odometry(0.7)] == [0.7, 0.6]
+    assert order.measurement(scan(3.0, 3), now=10.0) == []
+    assert [h.event.t for h in order.measurement(scan(3.25, 4), now=10.1)] == [3.0]
+    assert order.overdue(10.34) == []
+    assert [h.event.t for h in order.overdue(10.35)] == [3.25]
+
+
+def test_stray_stamps_and_a_stream_without_odometry_do_not_wait():
+    """Before any odometry there is none to wait for; a stamp that is not finite, or further
+    ahead of the odometry than a record may run (MAX_TIME_STEP), goes on at once (the localizer
+    says what it makes of it) and does not move the stream's clock."""
+    order = TimeOrder()
+    assert [h.event.t for h in order.measurement(scan(5.0, 0))] == [5.0]
+    order.odometry(1.0)
+    assert [h.event.t for h in order.measurement(scan(1.0 + 2 * MAX_TIME_STEP, 1))] == [11.0]
+    nan = order.measurement(scan(math.nan, 2))
+    assert len(nan) == 1 and math.isnan(nan[0].event.t)
+    assert order.clock == 5.0
+    assert order.measurement(scan(4.9, 3)) == []  # ahead of the odometry, within the wait
