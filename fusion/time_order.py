@@ -6,18 +6,19 @@ is localized once the odometry has reached its stamp, so that the filter predict
 it corrects (as AMCL waits for the odom → base transform); until then it is held here. A held
 measurement goes on without that odometry when the data show none is coming in time:
 
-* the stream's clock (the newest plausible stamp of any input) is ``wait`` seconds past it:
-  the odometry stopped, or is stamped behind the measurements;
+* the next measurement of the same sensor has arrived: a whole period of the sensor passed
+  without the odometry reaching it (the odometry stopped, or is stamped behind the sensor's
+  clock: then every reading that came meanwhile would hand it motion from after its time);
 * no odometry has come at all (the stream's start, or a robot without wheels), or the
   measurement's stamp is not finite or beyond ``MAX_TIME_STEP`` ahead of the odometry: the
   localizer, not the wait, says what it makes of it;
 * ``size`` measurements are held: the oldest goes on;
-* the caller asks: the stream ended (:meth:`TimeOrder.drain`), or, on a robot, it waited
+* the caller says so: the stream ended (:meth:`TimeOrder.drain`), or, on a robot, it waited
   ``wait`` seconds of wall time (:meth:`TimeOrder.overdue`).
 
 Measurements leave in their arrival order: one the odometry has reached waits behind an older
-one it has not. The rules read the data's stamps only (the wall-time one aside, which only the
-node uses), so the same stream in the same order gives the same poses offline and on a robot.
+one it has not. The rules read the data only (the wall-time one aside, which only the node
+uses), so the same stream in the same order gives the same poses offline and on a robot.
 """
 
 from __future__ import annotations
@@ -32,18 +33,20 @@ from fusion.io.timing import MAX_TIME_STEP
 Measurement = Scan | PointSet | Landmark
 
 ODOMETRY_WAIT = 0.25
-"""s a measurement waits for the odometry at its stamp before it goes on without: several
-odometry periods at 20–100 Hz, and a small share of a scan period's latency at 10–40 Hz."""
+"""s of wall time a measurement waits for the odometry at its stamp before it goes on without
+(on a robot: the node's ``houghloc.odom_wait``): several odometry periods at 20–100 Hz."""
 HELD_MEASUREMENTS = 10
 """Measurements held for the odometry at most; beyond, the oldest goes on without."""
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class Held:
     """A measurement and when it arrived (monotonic seconds of the caller's wall clock)."""
 
     event: Measurement
     arrived: float = 0.0
+    superseded: bool = False
+    """the next measurement of its sensor has arrived"""
 
 
 class TimeOrder:
@@ -55,8 +58,6 @@ class TimeOrder:
         self.wait, self.size = wait, size
         self.odometry_time: float | None = None
         """the newest odometry stamp"""
-        self.clock = -math.inf
-        """the newest plausible stamp of any input"""
         self._held: deque[Held] = deque()
 
     def __len__(self) -> int:
@@ -70,14 +71,13 @@ class TimeOrder:
     def clear(self) -> None:
         """Forget the measurements held and the odometry's time (the localizer starts again)."""
         self._held.clear()
-        self.odometry_time, self.clock = None, -math.inf
+        self.odometry_time = None
 
     def odometry(self, t: float) -> list[Held]:
         """An odometry reading at ``t`` (given to the localizer already): the measurements now
         due, oldest first."""
         if math.isfinite(t):
             self.odometry_time = t if self.odometry_time is None else max(self.odometry_time, t)
-            self.clock = max(self.clock, t)
         return self._due()
 
     def measurement(self, event: Measurement, now: float = 0.0) -> list[Held]:
@@ -87,9 +87,9 @@ class TimeOrder:
             due = [self._held.popleft()]
         else:
             due = []
+        for held in self._held:
+            held.superseded = held.superseded or held.event.sensor == event.sensor
         self._held.append(Held(event, now))
-        if self._plausible(event.t):
-            self.clock = max(self.clock, event.t)
         return due + self._due()
 
     def overdue(self, now: float) -> list[Held]:
@@ -107,15 +107,14 @@ class TimeOrder:
 
     def _due(self) -> list[Held]:
         due = []
-        while self._held and self._goes_on(self._held[0].event.t):
+        while self._held and self._goes_on(self._held[0]):
             due.append(self._held.popleft())
         return due
 
-    def _goes_on(self, t: float) -> bool:
-        """Does a measurement stamped ``t`` wait no longer for the odometry?"""
-        odometry = self.odometry_time
-        return (odometry is None or not self._plausible(t) or t <= odometry
-                or t + self.wait <= self.clock)
+    def _goes_on(self, held: Held) -> bool:
+        """Does a held measurement wait no longer for the odometry?"""
+        t, odometry = held.event.t, self.odometry_time
+        return held.superseded or odometry is None or not self._plausible(t) or t <= odometry
 
     def _plausible(self, t: float) -> bool:
         """A stamp the odometry could yet reach: finite and at most ``MAX_TIME_STEP`` ahead of

@@ -17,13 +17,13 @@ from fusion.time_order import Held, TimeOrder
 EMPTY = np.zeros(0)
 
 
-def scan(t: float, number: int) -> Scan:
-    return Scan(t, EMPTY, EMPTY, sensor=str(number))  # the sensor name numbers the arrival
+def scan(t: float, number: int, sensor: str = "laser") -> Scan:
+    return Scan(t, EMPTY, EMPTY, sensor=sensor, line=number)  # the line numbers the arrival
 
 
-# an input stream: ("scan", stamp), ("odometry", stamp) or ("tick", seconds of wall time)
+# an input stream: ("scan", stamp, sensor), ("odometry", stamp) or ("tick", seconds of wall time)
 _STAMP = st.one_of(st.floats(0.0, 10.0), st.sampled_from([math.nan, math.inf, 100.0]))
-_STEP = st.one_of(st.tuples(st.just("scan"), _STAMP),
+_STEP = st.one_of(st.tuples(st.just("scan"), _STAMP, st.sampled_from(["front", "rear"])),
                   st.tuples(st.just("odometry"), st.floats(0.0, 10.0)),
                   st.tuples(st.just("tick"), st.floats(0.0, 0.5)))
 
@@ -33,87 +33,89 @@ class _Stream:
 
     def __init__(self) -> None:
         self.odometry: float | None = None
-        self.clock = -math.inf
+        self.sensors: list[str] = []  # of each arrival
+        self.superseded: set[int] = set()  # arrivals whose sensor has sent a newer one
 
-    def plausible(self, t: float) -> bool:
-        return math.isfinite(t) and (self.odometry is None or t - self.odometry <= MAX_TIME_STEP)
+    def arrive(self, sensor: str) -> None:
+        self.superseded |= {k for k, s in enumerate(self.sensors) if s == sensor}
+        self.sensors.append(sensor)
 
-    def due(self, t: float, wait: float) -> bool:
-        """May a measurement stamped t go on without waiting longer for the odometry?"""
-        return (self.odometry is None or not self.plausible(t) or t <= self.odometry
-                or t + wait <= self.clock)
+    def due(self, held: Held) -> bool:
+        """May this measurement go on without waiting longer for the odometry?"""
+        t, odometry = held.event.t, self.odometry
+        return (odometry is None or held.event.line in self.superseded or not math.isfinite(t)
+                or t - odometry > MAX_TIME_STEP or t <= odometry)
 
 
 @given(st.lists(_STEP, max_size=60), st.integers(1, 5), st.floats(0.0, 1.0))
 def test_measurements_leave_in_arrival_order_once_and_only_when_due(steps, size, wait):
     """Every measurement leaves once, in the order it came, and only when due: the odometry has
-    reached its stamp, the stream's clock is ``wait`` past it, no odometry has come, its stamp
-    cannot be reached (not finite, or a stray far ahead), the queue was full (the oldest only),
-    it waited ``wait`` of wall time, or the stream ended. After every input the oldest still
-    held is not due: nothing waits longer than the rules say. At most ``size`` are held."""
+    reached its stamp, its sensor has sent a newer one, no odometry has come, its stamp cannot
+    be reached (not finite, or a stray far ahead), the queue was full (the oldest only), it
+    waited ``wait`` of wall time, or the stream ended. After every input the oldest still held
+    is not due: nothing waits longer than the rules say. At most ``size`` are held."""
     order, stream = TimeOrder(wait, size), _Stream()
-    now, arrived, left = 0.0, 0, []  # left: arrival numbers, in the order they left
+    now, left = 0.0, []  # left: arrival numbers, in the order they left
 
     def leave(due: list[Held], pushed_out: int = 0) -> None:
         for k, held in enumerate(due):
             if k >= pushed_out:
-                assert stream.due(held.event.t, wait)
-            left.append(int(held.event.sensor))
+                assert stream.due(held)
+            left.append(held.event.line)
 
-    for kind, value in steps:
+    for step in steps:
+        kind = step[0]
         if kind == "scan":
-            full = arrived - len(left) == size
-            due = order.measurement(scan(value, arrived), now)
-            arrived += 1
-            if stream.plausible(value):
-                stream.clock = max(stream.clock, value)
-            leave(due, pushed_out=int(full))
+            full = len(stream.sensors) - len(left) == size
+            number = len(stream.sensors)
+            stream.arrive(step[2])
+            leave(order.measurement(scan(step[1], number, step[2]), now), pushed_out=int(full))
         elif kind == "odometry":
-            stream.odometry = value if stream.odometry is None else max(stream.odometry, value)
-            stream.clock = max(stream.clock, value)
-            leave(order.odometry(value))
+            stream.odometry = step[1] if stream.odometry is None else max(stream.odometry,
+                                                                           step[1])
+            leave(order.odometry(step[1]))
         else:
-            now += value
+            now += step[1]
             due = order.overdue(now)
             assert all(now - held.arrived >= wait for held in due)
-            left.extend(int(held.event.sensor) for held in due)
-        assert len(order) == arrived - len(left) <= size
+            left.extend(held.event.line for held in due)
+        assert len(order) == len(stream.sensors) - len(left) <= size
         oldest = order.oldest
         if oldest is not None:  # not due by the data, nor by the wall clock after a tick
-            assert not stream.due(oldest.event.t, wait)
+            assert not stream.due(oldest)
             assert kind != "tick" or now - oldest.arrived < wait
     held = len(order)
     leave(order.drain(), pushed_out=held)  # the stream ended: every one goes on
-    assert left == list(range(arrived))  # in arrival order, each once
+    assert left == list(range(len(stream.sensors)))  # in arrival order, each once
     assert len(order) == 0
 
 
 def test_a_scan_ahead_of_the_odometry_holds_the_ones_behind_it():
-    """The odometry at 0.55 s releases the scan at 0.5 s, not the one at 0.7 s, nor the one at
-    0.6 s that came after it: measurements leave in their arrival order. The stream's clock
-    releases the one at 3.0 s when a scan stamped 3.25 s (``wait`` later) arrives, and the wall
-    clock the one at 3.25 s after 0.25 s."""
+    """Three lasers: the odometry at 0.55 s releases the front laser's scan at 0.5 s, not the
+    rear one's at 0.7 s, nor the side one's at 0.6 s that came after it: measurements leave in
+    their arrival order. The front laser's next scan releases the one at 3.0 s (the odometry stopped at 0.7 s),
+    the wall clock the one at 3.1 s after 0.25 s."""
     order = TimeOrder(wait=0.25)
     order.odometry(0.45)
-    for k, t in enumerate((0.5, 0.7, 0.6)):
-        assert order.measurement(scan(t, k)) == []
+    for k, (t, sensor) in enumerate(((0.5, "front"), (0.7, "rear"), (0.6, "side"))):
+        assert order.measurement(scan(t, k, sensor)) == []
     assert [h.event.t for h in order.odometry(0.55)] == [0.5]
     assert [h.event.t for h in order.odometry(0.7)] == [0.7, 0.6]
-    assert order.measurement(scan(3.0, 3), now=10.0) == []
-    assert [h.event.t for h in order.measurement(scan(3.25, 4), now=10.1)] == [3.0]
-    assert order.overdue(10.34) == []
-    assert [h.event.t for h in order.overdue(10.35)] == [3.25]
+    assert order.measurement(scan(3.0, 3, "front"), now=10.0) == []
+    assert order.measurement(scan(3.05, 4, "rear"), now=10.05) == []
+    assert [h.event.t for h in order.measurement(scan(3.1, 5, "front"), now=10.1)] == [3.0]
+    assert [h.event.t for h in order.overdue(10.34)] == [3.05]
+    assert [h.event.t for h in order.overdue(10.35)] == [3.1]
 
 
 def test_stray_stamps_and_a_stream_without_odometry_do_not_wait():
     """Before any odometry there is none to wait for; a stamp that is not finite, or further
     ahead of the odometry than a record may run (MAX_TIME_STEP), goes on at once (the localizer
-    says what it makes of it) and does not move the stream's clock."""
+    says what it makes of it)."""
     order = TimeOrder()
     assert [h.event.t for h in order.measurement(scan(5.0, 0))] == [5.0]
     order.odometry(1.0)
     assert [h.event.t for h in order.measurement(scan(1.0 + 2 * MAX_TIME_STEP, 1))] == [11.0]
     nan = order.measurement(scan(math.nan, 2))
     assert len(nan) == 1 and math.isnan(nan[0].event.t)
-    assert order.clock == 5.0
-    assert order.measurement(scan(4.9, 3)) == []  # ahead of the odometry, within the wait
+    assert order.measurement(scan(4.9, 3)) == []  # ahead of the odometry, within its reach
