@@ -320,6 +320,8 @@ def test_the_node_and_the_replay_give_the_same_poses_on_the_same_out_of_order_st
             node_poses.scans, replayed.scans, strict=True):
         assert t_node == t_replay and status_node == status_replay
         assert np.array_equal(pose_node, pose_replay), (t_node - EPOCH, pose_node - pose_replay)
-    errors = [np.hypot(*(p[:2] - truth[:2])) for (_, p, _), truth in
-              zip(replayed.scans, run.scan_truth, strict=True)]
-    assert max(errors) < 0.1
+    errors = np.array([np.hypot(*(p[:2] - truth[:2])) for (_, p, _), truth in
+                       zip(replayed.scans, run.scan_truth, strict=True)])
+    without = (run.scan_t >= late[0]) & (run.scan_t < late[1] + 0.5)
+    assert errors[~without].max() < 0.02
+    assert errors[without].max() < 0.25  # the readings of those 1.5 s came too late to be used

@@ -93,8 +93,8 @@ def test_measurements_leave_in_arrival_order_once_and_only_when_due(steps, size,
 def test_a_scan_ahead_of_the_odometry_holds_the_ones_behind_it():
     """Three lasers: the odometry at 0.55 s releases the front laser's scan at 0.5 s, not the
     rear one's at 0.7 s, nor the side one's at 0.6 s that came after it: measurements leave in
-    their arrival order. The front laser's next scan releases the one at 3.0 s (the odometry stopped at 0.7 s),
-    the wall clock the one at 3.1 s after 0.25 s."""
+    their arrival order. The odometry stops at 0.7 s: the front laser's next scan releases its
+    scan at 3.0 s, and the wall clock the others, each after 0.25 s held."""
     order = TimeOrder(wait=0.25)
     order.odometry(0.45)
     for k, (t, sensor) in enumerate(((0.5, "front"), (0.7, "rear"), (0.6, "side"))):
