@@ -1,8 +1,8 @@
 """The ROS 2 node: the same :class:`~fusion.Localizer` as ``houghloc run``, fed from topics, as a
 managed (lifecycle) node that nav2's lifecycle manager starts in place of AMCL.
 
-    scan (LaserScan; several: houghloc.scan_topics) ─▶ held until odometry reaches its stamp ─▶
-                                                       Localizer.on_scan
+    scan (LaserScan; several: houghloc.scan_topics) ─▶ TimeOrder: held until the odometry
+                                                       reaches its stamp ─▶ Localizer.on_scan
     odom (nav_msgs/Odometry) ─────────▶ Localizer.on_odometry
     initialpose (PoseWithCovarianceStamped, RViz's 2D Pose Estimate) ─▶ a new Localizer there
     map (OccupancyGrid, transient local, as map_server) ─▶ the segment map, unless --map
@@ -22,9 +22,10 @@ where to start (``set_initial_pose``, else a recent saved pose, else global loca
 lets scans through; *deactivate* stops taking scans; *cleanup* drops all of it. ``houghloc ros2``
 configures and activates the node itself unless ``--managed``.
 
-A scan waits for the odometry at its time (as AMCL waits for the odom → base transform) at most
-``houghloc.odom_wait`` seconds, so that the filter predicts to the scan before the scan corrects
-it; a robot without odometry therefore costs that much latency.
+A scan waits for the odometry at its time (as AMCL waits for the odom → base transform), until
+the laser's next scan and at most ``houghloc.odom_wait`` seconds, so that the filter predicts to
+the scan before the scan corrects it: the rules of ``houghloc run``, in the same
+:class:`~fusion.time_order.TimeOrder`. A robot without odometry localizes each scan at once.
 """
 
 from __future__ import annotations
