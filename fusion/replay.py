@@ -23,7 +23,6 @@ from numpy.typing import ArrayLike, NDArray
 from tqdm import tqdm
 
 from fusion.config import METRICS_VERSION_KEY
-from fusion.estimate import Estimate
 from fusion.evaluation import ATE, ATEResult, LostFraction, NEESResult, Trajectory, chi2_band, nees
 from fusion.events import Event, Landmark, Odometry, PointSet, ReadStats, Scan, Truth
 from fusion.integrity import integrity_scores, is_localized, localized_probability
@@ -31,7 +30,7 @@ from fusion.io.files import atomic_write_json
 from fusion.io.localized import LocalizedWriter
 from fusion.io.tum import TumWriter
 from fusion.localizer import Localizer
-from fusion.time_order import Held, TimeOrder
+from fusion.time_order import Held, TimeOrder, settled
 from houghloc import __version__
 
 
@@ -155,16 +154,18 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
            trajectory_path: str | Path | None = None, progress: bool | None = None,
            description: str = "replay", keep: bool = True,
            time_scans: bool = False, localized_path: str | Path | None = None) -> ReplayResult:
-    """Feed every event to the localizer in arrival order, each measurement when the odometry
-    has reached it (:class:`fusion.time_order.TimeOrder`, as the ROS 2 node does); collect the
-    estimate at each scan.
+    """Feed every event to the localizer in arrival order; collect the estimate at each scan.
 
     ``progress``: a tqdm bar in scans (None: only when writing to a terminal). ``keep=False``
     keeps no per-scan results in memory (they are in the trajectory file): memory then does not
     grow with the log, and only counts and timings are returned. ``time_scans``: keep each
     scan's CPU time too (``ReplayResult.scan_cpu``, for a benchmark's worst window).
     ``localized_path``: where each pose's integrity is written as it is recorded
-    (:mod:`fusion.io.localized`). Outputs stay in scan order.
+    (:mod:`fusion.io.localized`).
+
+    A scan taken after the newest odometry reading is used at once, but its pose is recorded
+    when the odometry covering its time has arrived, or the next scan at the latest
+    (:class:`fusion.time_order.TimeOrder`, as the ROS 2 node does). Outputs stay in scan order.
     """
     rows = _Rows(1 + 3 + 6 + 1)  # t, pose, covariance's upper triangle, localized probability
     statuses: list[str] = []  # the same few strings, shared: one reference a scan
@@ -180,69 +181,67 @@ def replay(events: Iterable[Event], localizer: Localizer, *,
     n_scans = 0
     first_t = last_t = None
     interrupted = False
+    tracker = localizer.tracker
     order = TimeOrder()
 
-    def record(t_out: float, est: Estimate) -> None:
-        probability = localized_probability(np.asarray(est.cov), est.mode)
-        reported[0] += is_localized(probability)
-        reported[1] += probability
-        if keep:
-            rows.append(t_out, est.pose, np.asarray(est.cov)[_UPPER], probability)
-            statuses.append(est.status)
-        if writer is not None:
-            writer.write(t_out, *est.pose)
-        if side is not None:
-            side.write(t_out, probability, est.status)
-
-    def localize(due: list[Held]) -> None:
-        nonlocal n_scans, first_t, last_t
+    def record(due: list[Held]) -> None:
         for held in due:
-            event = held.event
-            if isinstance(event, Landmark):
-                localizer.on_landmark(event.t, event.label, event.bearing)
-                continue
-            t0 = time.perf_counter()
-            cpu = time.process_time() if time_scans else 0.0
-            if isinstance(event, Scan):
-                est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
-                                        event.max_range)
-            else:
-                est = localizer.on_points(event.t, event.points, event.sensor)
-            seconds["scans"] += time.perf_counter() - t0
-            if time_scans:
-                scan_cpu.append(time.process_time() - cpu)
-            # outputs at a record's own (out-of-order) stamp, so they line up with references
-            stamp = getattr(event, "stamp", None)
-            t_out = est.t if stamp is None else stamp
-            n_scans += 1
-            first_t = t_out if first_t is None else first_t
-            last_t = t_out
-            record(t_out, est)
-            bar.update()
+            est = settled(held, tracker)
+            probability = localized_probability(np.asarray(est.cov), est.mode)
+            reported[0] += is_localized(probability)
+            reported[1] += probability
+            if keep:
+                rows.append(held.t_out, est.pose, np.asarray(est.cov)[_UPPER], probability)
+                statuses.append(est.status)
+            if writer is not None:
+                writer.write(held.t_out, *est.pose)
+            if side is not None:
+                side.write(held.t_out, probability, est.status)
 
     started = time.perf_counter()
     with _signals_between_events() as stop_if_signalled:
         try:
-            try:
-                for event in events:
-                    stop_if_signalled()
-                    n_events += 1
-                    if isinstance(event, Odometry):
-                        t0 = time.perf_counter()
-                        localizer.on_odometry(event.t, event.x, event.y, event.theta,
-                                              event.unmeasured)
-                        seconds["odometry"] += time.perf_counter() - t0
-                        localize(order.odometry(event.t))
-                    elif isinstance(event, Scan | PointSet | Landmark):
-                        localize(order.measurement(event))
-                    elif isinstance(event, Truth):
-                        truth.append((event.t, event.x, event.y, event.theta))
-                        localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
-                stop_if_signalled()  # a signal that came in the last event
-            except KeyboardInterrupt:
-                interrupted = True
-            localize(order.drain())  # the stream ended or was stopped: no odometry will come
+            for event in events:
+                stop_if_signalled()
+                n_events += 1
+                t0 = time.perf_counter()
+                if isinstance(event, Odometry):
+                    localizer.on_odometry(event.t, event.x, event.y, event.theta,
+                                          event.unmeasured)
+                    seconds["odometry"] += time.perf_counter() - t0
+                    record(order.odometry(tracker.odometry_time))
+                    continue
+                if isinstance(event, Landmark):
+                    localizer.on_landmark(event.t, event.label, event.bearing)
+                    continue
+                if isinstance(event, Truth):
+                    truth.append((event.t, event.x, event.y, event.theta))
+                    localizer.logger.log_truth(event.t, (event.x, event.y, event.theta))
+                    continue
+                record(order.scan_arriving())
+                cpu = time.process_time() if time_scans else 0.0
+                if isinstance(event, Scan):
+                    est = localizer.on_scan(event.t, event.ranges, event.angles, event.sensor,
+                                            event.max_range)
+                elif isinstance(event, PointSet):
+                    est = localizer.on_points(event.t, event.points, event.sensor)
+                else:
+                    continue
+                seconds["scans"] += time.perf_counter() - t0
+                if time_scans:
+                    scan_cpu.append(time.process_time() - cpu)
+                stamp = getattr(event, "stamp", None)  # a record's own (out-of-order) timestamp
+                t_est = est.t if stamp is None else stamp
+                n_scans += 1
+                first_t = t_est if first_t is None else first_t
+                last_t = t_est
+                record(order.localized(est, t_est, tracker.odometry_time))
+                bar.update()
+            stop_if_signalled()  # a signal that came in the last event
+        except KeyboardInterrupt:
+            interrupted = True
         finally:
+            record(order.drain())
             bar.close()
             if writer is not None:
                 writer.close()

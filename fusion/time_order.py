@@ -1,63 +1,65 @@
-"""When each measurement meets the filter: the one owner of time ordering, for the replay
+"""When each scan's pose is reported: the one owner of time ordering, for the replay
 (:func:`fusion.replay.replay`) and the ROS 2 node alike.
 
-Odometry goes to the localizer as it arrives. A measurement (a scan, a point set, a landmark)
-is localized once the odometry has reached its stamp, so that the filter predicts to it before
-it corrects (as AMCL waits for the odom → base transform); until then it is held here. A held
-measurement goes on without that odometry when the data show none is coming in time:
+Odometry and scans go to the localizer as they arrive. A scan stamped after the newest odometry
+reading (its reading for the same instant is next in the stream, or the clocks differ by a
+rounding) is localized at once, the filter carrying the pose past that reading
+(:mod:`fusion.pose_history`); its pose is *reported* once the odometry covering its stamp has
+arrived, so that the pose at its time holds the odometry on both sides of it. Until then its
+estimate is held here. A held estimate is reported without that odometry when the data show
+none is coming in time:
 
-* the next measurement of the same sensor has arrived: a whole period of the sensor passed
-  without the odometry reaching it (the odometry stopped, or is stamped behind the sensor's
-  clock: then every reading that came meanwhile would hand it motion from after its time);
-* no odometry has come at all (the stream's start, or a robot without wheels), or the
-  measurement's stamp is not finite or beyond ``MAX_TIME_STEP`` ahead of the odometry: the
-  localizer, not the wait, says what it makes of it;
-* ``size`` measurements are held: the oldest goes on;
+* the next scan arrives: odometry stamped behind the scans (a run of readings sharing one
+  stamp) would otherwise hold it until the stamps catch up, and then give it all the motion
+  since;
+* ``size`` estimates are held: the oldest goes;
 * the caller says so: the stream ended (:meth:`TimeOrder.drain`), or, on a robot, it waited
   ``wait`` seconds of wall time (:meth:`TimeOrder.overdue`).
 
-Measurements leave in their arrival order: one the odometry has reached waits behind an older
-one it has not. The rules read the data only (the wall-time one aside, which only the node
-uses), so the same stream in the same order gives the same poses offline and on a robot.
+Estimates leave in scan order. The rules read the data only (the wall-time one aside, which
+only the node uses), so the same stream in the same order gives the same poses offline and on
+a robot. Waiting to *localize* a scan until the odometry reaches it (as AMCL waits for the
+odom → base transform) was measured and not kept (docs/experiments.md, "The time order").
 """
 
 from __future__ import annotations
 
-import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
-from fusion.events import Landmark, PointSet, Scan
-from fusion.io.timing import MAX_TIME_STEP
-
-Measurement = Scan | PointSet | Landmark
+if TYPE_CHECKING:
+    from fusion.estimate import Estimate
+    from fusion.tracker import PoseTracker
 
 ODOMETRY_WAIT = 0.25
-"""s of wall time a measurement waits for the odometry at its stamp before it goes on without
-(on a robot: the node's ``houghloc.odom_wait``): several odometry periods at 20–100 Hz."""
-HELD_MEASUREMENTS = 10
-"""Measurements held for the odometry at most; beyond, the oldest goes on without."""
+"""s of wall time a pose waits for the odometry at its scan's stamp before it is reported
+without (on a robot: the node's ``houghloc.odom_wait``): several odometry periods at
+20–100 Hz."""
+HELD_ESTIMATES = 10
+"""Estimates held for the odometry at most; beyond, the oldest is reported without."""
 
 
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class Held:
-    """A measurement and when it arrived (monotonic seconds of the caller's wall clock)."""
+    """A scan's estimate, the time its pose is reported at (the record's own stamp where the
+    reader had to replace it), and when it arrived (monotonic seconds of the caller's clock)."""
 
-    event: Measurement
+    estimate: Estimate
+    t_out: float
     arrived: float = 0.0
-    superseded: bool = False
-    """the next measurement of its sensor has arrived"""
+    waited: bool = False
+    """held for the odometry: its pose is read again when it is reported (:func:`settled`)"""
 
 
 class TimeOrder:
-    """The measurements waiting for the odometry, oldest first (module docstring)."""
+    """The estimates waiting for the odometry to cover their scans, oldest first (module
+    docstring)."""
 
-    def __init__(self, wait: float = ODOMETRY_WAIT, size: int = HELD_MEASUREMENTS) -> None:
+    def __init__(self, wait: float = ODOMETRY_WAIT, size: int = HELD_ESTIMATES) -> None:
         if not (wait >= 0.0 and size >= 1):
             raise ValueError(f"wait {wait} s and size {size}: expected wait ≥ 0 and size ≥ 1")
         self.wait, self.size = wait, size
-        self.odometry_time: float | None = None
-        """the newest odometry stamp"""
         self._held: deque[Held] = deque()
 
     def __len__(self) -> int:
@@ -65,59 +67,58 @@ class TimeOrder:
 
     @property
     def oldest(self) -> Held | None:
-        """The measurement that leaves next, None when none is held."""
+        """The estimate reported next, None when none is held."""
         return self._held[0] if self._held else None
 
-    def clear(self) -> None:
-        """Forget the measurements held and the odometry's time (the localizer starts again)."""
-        self._held.clear()
-        self.odometry_time = None
+    def scan_arriving(self) -> list[Held]:
+        """A scan arrived, before it is localized: every estimate held is reported now."""
+        return self.drain()
 
-    def odometry(self, t: float) -> list[Held]:
-        """An odometry reading at ``t`` (given to the localizer already): the measurements now
-        due, oldest first."""
-        if math.isfinite(t):
-            self.odometry_time = t if self.odometry_time is None else max(self.odometry_time, t)
-        return self._due()
+    def localized(self, estimate: Estimate, t_out: float, odometry_time: float | None,
+                  now: float = 0.0) -> list[Held]:
+        """A scan's ``estimate`` (``odometry_time``: the filter's newest reading): reported at
+        once when the odometry covers its stamp and nothing is held before it, else held; the
+        estimates now due, oldest first."""
+        if not self._held and (odometry_time is None or estimate.t <= odometry_time):
+            return [Held(estimate, t_out, now)]
+        due = [self._held.popleft()] if len(self._held) == self.size else []
+        self._held.append(Held(estimate, t_out, now, waited=True))
+        return due
 
-    def measurement(self, event: Measurement, now: float = 0.0) -> list[Held]:
-        """A measurement arrived (at ``now``, wall time): held, and the measurements now due,
-        oldest first (itself among them when nothing holds it)."""
-        if len(self._held) == self.size:
-            due = [self._held.popleft()]
-        else:
-            due = []
-        for held in self._held:
-            held.superseded = held.superseded or held.event.sensor == event.sensor
-        self._held.append(Held(event, now))
-        return due + self._due()
+    def odometry(self, odometry_time: float | None) -> list[Held]:
+        """An odometry reading was taken (``odometry_time``: the filter's newest reading): the
+        estimates it covers, oldest first."""
+        due = []
+        while (self._held and odometry_time is not None
+               and self._held[0].estimate.t <= odometry_time):
+            due.append(self._held.popleft())
+        return due
 
     def overdue(self, now: float) -> list[Held]:
-        """The measurements, oldest first, that have waited ``wait`` seconds of wall time."""
+        """The estimates, oldest first, that have waited ``wait`` seconds of wall time."""
         due = []
         while self._held and now - self._held[0].arrived >= self.wait:
             due.append(self._held.popleft())
         return due
 
     def drain(self) -> list[Held]:
-        """Every measurement held, oldest first: the stream ended."""
+        """Every estimate held, oldest first."""
         due = list(self._held)
         self._held.clear()
         return due
 
-    def _due(self) -> list[Held]:
-        due = []
-        while self._held and self._goes_on(self._held[0]):
-            due.append(self._held.popleft())
-        return due
+    def clear(self) -> None:
+        """Forget the estimates held (the localizer they came from is gone)."""
+        self._held.clear()
 
-    def _goes_on(self, held: Held) -> bool:
-        """Does a held measurement wait no longer for the odometry?"""
-        t, odometry = held.event.t, self.odometry_time
-        return held.superseded or odometry is None or not self._plausible(t) or t <= odometry
 
-    def _plausible(self, t: float) -> bool:
-        """A stamp the odometry could yet reach: finite and at most ``MAX_TIME_STEP`` ahead of
-        it (the localizer drops one further ahead as a stray stamp)."""
-        odometry = self.odometry_time
-        return math.isfinite(t) and (odometry is None or t - odometry <= MAX_TIME_STEP)
+def settled(held: Held, tracker: PoseTracker) -> Estimate:
+    """The scan's estimate as reported: one that waited for the odometry with the filter's pose
+    and covariance at its time now (the odometry since has arrived, or will not in time), or as
+    it was when the filter has no pose there; one reported at once as it is."""
+    if not held.waited:
+        return held.estimate
+    at_t = tracker.pose_at(held.estimate.t)
+    if at_t is None:
+        return held.estimate
+    return replace(held.estimate, pose=at_t[0], cov=at_t[1])

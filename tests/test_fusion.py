@@ -157,14 +157,12 @@ def check_latency(seed: int, duration: float) -> None:
     late_applied_on_arrival = localize(late_run, config_for("robocup-camera",
                                                             delayed_updates=False))
 
+    assert on_time.localizer.tracker.counts.delayed == 0
     # Every late frame used (its fix, or its guess polished on its points) goes through the
     # history but the first, which arrives before any later odometry and is applied directly.
     stats = late.localizer.stats
     used = stats.accepted + stats.rejected + stats.points_fixes
     assert used > 0 and late.localizer.tracker.counts.delayed == used - 1
-    # On time, only a frame stamped between two odometry readings does: it waits for the next
-    # reading (fusion.time_order) and is applied at its own time, one reading back.
-    assert on_time.localizer.tracker.counts.delayed < 0.5 * late.localizer.tracker.counts.delayed
     # Applied at its capture time, a late frame is worth what it was worth on time.
     assert late.position_rmse <= 1.10 * on_time.position_rmse
     assert late.heading_rmse_deg <= 1.10 * on_time.heading_rmse_deg

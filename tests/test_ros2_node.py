@@ -238,11 +238,12 @@ def test_houghloc_ros2_in_its_own_process_localizes_the_run() -> None:
 def test_the_node_and_the_replay_give_the_same_poses_on_the_same_out_of_order_stream():
     """One owner of time ordering (fusion.time_order): the same stream, in the same arrival
     order, through the node's callbacks and through ``replay``, gives the same pose at every
-    scan, bit for bit. The stream is out of order as drivers send it: every scan comes before
-    the odometry reading at its own stamp, and the readings of 1.5 s come late, all at once,
-    after the scans of that time (which then go on without them, each once the stream is
-    ``odom_wait`` past it). The callbacks are called directly so that the arrival order is the
-    test's, not the middleware's."""
+    scan, bit for bit, as published and as written. The stream is out of order as drivers send
+    it: every scan comes before the odometry reading at its own stamp (its pose is published
+    once that reading comes), and the readings of 1.5 s come late, all at once, after the scans
+    of that time (whose poses are published when the next scan comes). The callbacks are called
+    directly so that the arrival order is the test's, not the middleware's; what the node
+    publishes is recorded where it hands each pose to its publishers."""
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import LaserScan
 
@@ -252,14 +253,20 @@ def test_the_node_and_the_replay_give_the_same_poses_on_the_same_out_of_order_st
     from fusion.replay import replay
     from fusion.ros2.messages import set_stamp
     from fusion.ros2.node import LocalizerNode
-    from fusion.visualize import NullLogger
+    from fusion.time_order import settled
 
-    class Poses(NullLogger):
-        def __init__(self) -> None:
-            self.scans: list[tuple[float, np.ndarray, str]] = []
+    class Published(LocalizerNode):
+        """The node, recording each pose as it hands it to its publishers."""
 
-        def log_scan(self, t, index, sensor, points, correction, estimate) -> None:
-            self.scans.append((t, estimate.pose.copy(), str(estimate.status)))
+        def __init__(self, *args, **kwargs) -> None:
+            self.published: list[tuple[float, np.ndarray, str]] = []
+            super().__init__(*args, **kwargs)
+
+        def _report(self, due) -> None:
+            for held in due:
+                est = settled(held, self.localizer.tracker)
+                self.published.append((est.t, est.pose.copy(), str(est.status)))
+            super()._report(due)
 
     run, _ = office_run(seconds=10.0, seed=3)
     config = LocalizerConfig.from_yaml("office-laser")
@@ -292,17 +299,16 @@ def test_the_node_and_the_replay_give_the_same_poses_on_the_same_out_of_order_st
             held = []
     assert sum(isinstance(m, LaserScan) for m in stream) == len(run.scan_t)
 
-    node_poses = Poses()
     context = rclpy.Context()
     rclpy.init(context=context)
-    node = LocalizerNode(run.map, config, run.scan_truth[0], node_poses, context=context)
+    node = Published(run.map, config, run.scan_truth[0], context=context)
     try:
         for msg in stream:
             if isinstance(msg, LaserScan):
                 node._on_scan(msg)
             else:
                 node._on_odometry(msg)
-        node._localize(node._order.drain())  # the stream ended
+        node._report(node._order.drain())  # the stream ended
         assert node.localizer is not None
         used = node.localizer.config
         start = node.localizer.initial_pose
@@ -312,16 +318,15 @@ def test_the_node_and_the_replay_give_the_same_poses_on_the_same_out_of_order_st
 
     events = [scan_event(m, used.laser, 0, {}) if isinstance(m, LaserScan) else odometry_event(m)
               for m in stream]
-    replayed = Poses()
-    replay(events, Localizer(run.map, used, start, replayed), progress=False)
+    replayed = replay(events, Localizer(run.map, used, start), progress=False)
 
-    assert len(node_poses.scans) == len(replayed.scans) == len(run.scan_t)
-    for (t_node, pose_node, status_node), (t_replay, pose_replay, status_replay) in zip(
-            node_poses.scans, replayed.scans, strict=True):
-        assert t_node == t_replay and status_node == status_replay
+    published = node.published
+    assert len(published) == len(replayed.t) == len(run.scan_t)
+    for (t_node, pose_node, status_node), t_replay, pose_replay, status_replay in zip(
+            published, replayed.t, replayed.poses, replayed.statuses, strict=True):
+        assert t_node == t_replay and status_node == str(status_replay)
         assert np.array_equal(pose_node, pose_replay), (t_node - EPOCH, pose_node - pose_replay)
-    errors = np.array([np.hypot(*(p[:2] - truth[:2])) for (_, p, _), truth in
-                       zip(replayed.scans, run.scan_truth, strict=True)])
+    errors = np.hypot(*(replayed.poses[:, :2] - run.scan_truth[:, :2]).T)
     without = (run.scan_t >= late[0]) & (run.scan_t < late[1] + 0.5)
     assert errors[~without].max() < 0.02
     assert errors[without].max() < 0.25  # the readings of those 1.5 s came too late to be used

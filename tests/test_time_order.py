@@ -1,121 +1,98 @@
-"""When each measurement meets the filter (fusion/time_order.py), without ROS: what leaves, in
-which order, and when. The replay and the ROS 2 node share this owner; that they give the same
-poses on the same stream is tested in tests/test_ros2_node.py."""
+"""When each scan's pose is reported (fusion/time_order.py), without ROS: which estimates
+leave, in which order, and when. The replay and the ROS 2 node share this owner; that they give
+the same poses on the same stream is tested in tests/test_ros2_node.py."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fusion.events import Scan
-from fusion.io.timing import MAX_TIME_STEP
-from fusion.time_order import Held, TimeOrder
-
-EMPTY = np.zeros(0)
-
-
-def scan(t: float, number: int, sensor: str = "laser") -> Scan:
-    return Scan(t, EMPTY, EMPTY, sensor=sensor, line=number)  # the line numbers the arrival
+from fusion.estimate import Estimate
+from fusion.settings.filter import FilterConfig
+from fusion.status import ScanStatus
+from fusion.time_order import Held, TimeOrder, settled
+from fusion.tracker import PoseTracker
 
 
-# an input stream: ("scan", stamp, sensor), ("odometry", stamp) or ("tick", seconds of wall time)
-_STAMP = st.one_of(st.floats(0.0, 10.0), st.sampled_from([math.nan, math.inf, 100.0]))
-_STEP = st.one_of(st.tuples(st.just("scan"), _STAMP, st.sampled_from(["front", "rear"])),
+def estimate(t: float) -> Estimate:
+    return Estimate(t, np.zeros(3), np.eye(3), ScanStatus.ACCEPTED)
+
+
+# an input stream: ("scan", stamp), ("odometry", stamp) or ("tick", seconds of wall time)
+_STEP = st.one_of(st.tuples(st.just("scan"), st.floats(0.0, 10.0)),
                   st.tuples(st.just("odometry"), st.floats(0.0, 10.0)),
                   st.tuples(st.just("tick"), st.floats(0.0, 0.5)))
 
 
-class _Stream:
-    """What the stream has shown so far, kept by the test itself: the law's terms."""
-
-    def __init__(self) -> None:
-        self.odometry: float | None = None
-        self.sensors: list[str] = []  # of each arrival
-        self.superseded: set[int] = set()  # arrivals whose sensor has sent a newer one
-
-    def arrive(self, sensor: str) -> None:
-        self.superseded |= {k for k, s in enumerate(self.sensors) if s == sensor}
-        self.sensors.append(sensor)
-
-    def due(self, held: Held) -> bool:
-        """May this measurement go on without waiting longer for the odometry?"""
-        t, odometry = held.event.t, self.odometry
-        return (odometry is None or held.event.line in self.superseded or not math.isfinite(t)
-                or t - odometry > MAX_TIME_STEP or t <= odometry)
-
-
-@given(st.lists(_STEP, max_size=60), st.integers(1, 5), st.floats(0.0, 1.0))
-def test_measurements_leave_in_arrival_order_once_and_only_when_due(steps, size, wait):
-    """Every measurement leaves once, in the order it came, and only when due: the odometry has
-    reached its stamp, its sensor has sent a newer one, no odometry has come, its stamp cannot
-    be reached (not finite, or a stray far ahead), the queue was full (the oldest only), it
-    waited ``wait`` of wall time, or the stream ended. After every input the oldest still held
-    is not due: nothing waits longer than the rules say. At most ``size`` are held."""
-    order, stream = TimeOrder(wait, size), _Stream()
-    now, left = 0.0, []  # left: arrival numbers, in the order they left
-
-    def leave(due: list[Held], pushed_out: int = 0) -> None:
-        for k, held in enumerate(due):
-            if k >= pushed_out:
-                assert stream.due(held)
-            left.append(held.event.line)
-
-    for step in steps:
-        kind = step[0]
+@given(st.lists(_STEP, max_size=60), st.floats(0.0, 1.0))
+def test_poses_are_reported_in_scan_order_once_and_only_when_due(steps, wait):
+    """Every scan's estimate is reported once, in scan order, and only when due: at once when
+    the odometry covers its stamp and nothing waits before it; later when an odometry reading
+    covers it, when the next scan arrives, when it waited ``wait`` of wall time, or when the
+    stream ends. After every input the oldest still held is not covered by the odometry."""
+    order = TimeOrder(wait)
+    odometry, now, scans, reported = None, 0.0, 0, []  # reported: scan numbers, in order
+    for kind, value in steps:
         if kind == "scan":
-            full = len(stream.sensors) - len(left) == size
-            number = len(stream.sensors)
-            stream.arrive(step[2])
-            leave(order.measurement(scan(step[1], number, step[2]), now), pushed_out=int(full))
+            reported.extend(int(h.t_out) for h in order.scan_arriving())
+            assert len(order) == 0  # the next scan ends every wait
+            due = order.localized(estimate(value), float(scans), odometry, now)
+            if due and not due[0].waited:  # at once: covered, nothing held before it
+                assert odometry is None or value <= odometry
+            else:
+                assert due == [] and len(order) == 1
+            reported.extend(int(h.t_out) for h in due)
+            scans += 1
         elif kind == "odometry":
-            stream.odometry = step[1] if stream.odometry is None else max(stream.odometry,
-                                                                           step[1])
-            leave(order.odometry(step[1]))
+            odometry = value if odometry is None else max(odometry, value)
+            due = order.odometry(odometry)
+            assert all(h.estimate.t <= odometry for h in due)
+            reported.extend(int(h.t_out) for h in due)
         else:
-            now += step[1]
+            now += value
             due = order.overdue(now)
-            assert all(now - held.arrived >= wait for held in due)
-            left.extend(held.event.line for held in due)
-        assert len(order) == len(stream.sensors) - len(left) <= size
+            assert all(now - h.arrived >= wait for h in due)
+            reported.extend(int(h.t_out) for h in due)
         oldest = order.oldest
-        if oldest is not None:  # not due by the data, nor by the wall clock after a tick
-            assert not stream.due(oldest)
+        if oldest is not None:
+            assert odometry is not None and oldest.estimate.t > odometry
             assert kind != "tick" or now - oldest.arrived < wait
-    held = len(order)
-    leave(order.drain(), pushed_out=held)  # the stream ended: every one goes on
-    assert left == list(range(len(stream.sensors)))  # in arrival order, each once
-    assert len(order) == 0
+    reported.extend(int(h.t_out) for h in order.drain())
+    assert reported == list(range(scans))  # in scan order, each once
 
 
-def test_a_scan_ahead_of_the_odometry_holds_the_ones_behind_it():
-    """Three lasers: the odometry at 0.55 s releases the front laser's scan at 0.5 s, not the
-    rear one's at 0.7 s, nor the side one's at 0.6 s that came after it: measurements leave in
-    their arrival order. The odometry stops at 0.7 s: the front laser's next scan releases its
-    scan at 3.0 s, and the wall clock the others, each after 0.25 s held."""
-    order = TimeOrder(wait=0.25)
-    order.odometry(0.45)
-    for k, (t, sensor) in enumerate(((0.5, "front"), (0.7, "rear"), (0.6, "side"))):
-        assert order.measurement(scan(t, k, sensor)) == []
-    assert [h.event.t for h in order.odometry(0.55)] == [0.5]
-    assert [h.event.t for h in order.odometry(0.7)] == [0.7, 0.6]
-    assert order.measurement(scan(3.0, 3, "front"), now=10.0) == []
-    assert order.measurement(scan(3.05, 4, "rear"), now=10.05) == []
-    assert [h.event.t for h in order.measurement(scan(3.1, 5, "front"), now=10.1)] == [3.0]
-    assert [h.event.t for h in order.overdue(10.34)] == [3.05]
-    assert [h.event.t for h in order.overdue(10.35)] == [3.1]
+def test_a_full_order_reports_its_oldest_and_a_covered_scan_waits_behind_an_older_one():
+    """Estimates held past the odometry leave oldest first: when ``size`` are held the oldest
+    is reported; an estimate the odometry covers waits behind an older one it does not."""
+    order = TimeOrder(size=2)
+    assert order.localized(estimate(1.0), 1.0, 0.5) == []
+    assert order.localized(estimate(0.7), 0.7, 0.5) == []
+    assert order.odometry(0.8) == []  # 0.7 is covered, but waits behind the one at 1.0
+    assert [h.t_out for h in order.localized(estimate(1.2), 1.2, 0.8)] == [1.0]  # full
+    assert [h.t_out for h in order.odometry(0.8)] == [0.7]
+    assert [h.t_out for h in order.odometry(1.2)] == [1.2]
+    assert order.overdue(100.0) == [] and order.drain() == []
+    with pytest.raises(ValueError, match="wait"):
+        TimeOrder(wait=-1.0)
 
 
-def test_stray_stamps_and_a_stream_without_odometry_do_not_wait():
-    """Before any odometry there is none to wait for; a stamp that is not finite, or further
-    ahead of the odometry than a record may run (MAX_TIME_STEP), goes on at once (the localizer
-    says what it makes of it)."""
+def test_a_pose_that_waited_is_read_again_at_its_scans_time():
+    """A scan at 0.15 s, after the newest reading (0.1 s): the estimate the localizer gave then
+    carried the pose past the reading. Reported after the reading at 0.2 s, its pose is the
+    filter's at 0.15 s now, between the two readings; reported at once, as it was."""
+    tracker = PoseTracker.from_config(FilterConfig(), np.zeros(3))
+    tracker.on_odometry(0.0, 0.0, 0.0, 0.0)
+    tracker.on_odometry(0.1, 0.1, 0.0, 0.0)
+    ahead = tracker.pose_at(0.15)
+    assert ahead is not None
+    early = Estimate(0.15, ahead[0], ahead[1], ScanStatus.NO_FIX)
     order = TimeOrder()
-    assert [h.event.t for h in order.measurement(scan(5.0, 0))] == [5.0]
-    order.odometry(1.0)
-    assert [h.event.t for h in order.measurement(scan(1.0 + 2 * MAX_TIME_STEP, 1))] == [11.0]
-    nan = order.measurement(scan(math.nan, 2))
-    assert len(nan) == 1 and math.isnan(nan[0].event.t)
-    assert order.measurement(scan(4.9, 3)) == []  # ahead of the odometry, within its reach
+    assert order.localized(early, 0.15, tracker.odometry_time) == []
+    tracker.on_odometry(0.2, 0.3, 0.0, 0.0)  # the robot sped up: 3 m/s, not 1 m/s
+    (held,) = order.odometry(tracker.odometry_time)
+    reported = settled(held, tracker)
+    assert reported.pose[0] == pytest.approx(0.2, abs=1e-9)  # halfway from 0.1 to 0.3 m
+    assert early.pose[0] == pytest.approx(0.15, abs=1e-9)  # carried at 1 m/s
+    assert settled(Held(early, 0.15), tracker) is early  # reported at once: as it was

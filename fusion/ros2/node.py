@@ -1,8 +1,8 @@
 """The ROS 2 node: the same :class:`~fusion.Localizer` as ``houghloc run``, fed from topics, as a
 managed (lifecycle) node that nav2's lifecycle manager starts in place of AMCL.
 
-    scan (LaserScan; several: houghloc.scan_topics) ─▶ TimeOrder: held until the odometry
-                                                       reaches its stamp ─▶ Localizer.on_scan
+    scan (LaserScan; several: houghloc.scan_topics) ─▶ Localizer.on_scan ─▶ TimeOrder: its
+                                                       pose held until the odometry covers it
     odom (nav_msgs/Odometry) ─────────▶ Localizer.on_odometry
     initialpose (PoseWithCovarianceStamped, RViz's 2D Pose Estimate) ─▶ a new Localizer there
     map (OccupancyGrid, transient local, as map_server) ─▶ the segment map, unless --map
@@ -22,10 +22,10 @@ where to start (``set_initial_pose``, else a recent saved pose, else global loca
 lets scans through; *deactivate* stops taking scans; *cleanup* drops all of it. ``houghloc ros2``
 configures and activates the node itself unless ``--managed``.
 
-A scan waits for the odometry at its time (as AMCL waits for the odom → base transform), until
-the laser's next scan and at most ``houghloc.odom_wait`` seconds, so that the filter predicts to
-the scan before the scan corrects it: the rules of ``houghloc run``, in the same
-:class:`~fusion.time_order.TimeOrder`. A robot without odometry localizes each scan at once.
+A scan is localized when it arrives; its pose is published once the odometry covers its stamp,
+so that the pose at its time holds the odometry on both sides, or when the next scan arrives,
+or after ``houghloc.odom_wait`` seconds: the rules of ``houghloc run``, in the same
+:class:`~fusion.time_order.TimeOrder`.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from fusion.ros2.saved_pose import save_pose
 from fusion.ros2.settings import NodeSettings, declare, read
 from fusion.ros2.start import GLOBAL, Start, choose_start
 from fusion.ros2.tf2_msgs import available as tf2_msgs_available
-from fusion.time_order import Held, TimeOrder
+from fusion.time_order import Held, TimeOrder, settled
 from fusion.visualize import Logger, NullLogger
 from houghloc import SegmentMap
 
@@ -229,7 +229,8 @@ class LocalizerNode(LifecycleNode):
         self._odometry.append(event.t, event.x, event.y, event.theta)
         if self.localizer is not None and self._active:
             self.localizer.on_odometry(event.t, event.x, event.y, event.theta)
-        self._localize(self._order.odometry(event.t))
+        if self.localizer is not None:
+            self._report(self._order.odometry(self.localizer.tracker.odometry_time))
 
     def _on_scan(self, msg: LaserScan, sensor: str | None = None) -> None:
         """A scan of ``sensor`` (the config's laser, or the i-th of ``houghloc.scan_topics``)."""
@@ -238,7 +239,8 @@ class LocalizerNode(LifecycleNode):
         sensor = sensor or self.config.laser or "laser"
         scan = scan_event(msg, sensor, 0, self._angles)
         self._frames.setdefault(sensor, msg.header.frame_id.lstrip("/"))
-        self._localize(self._order.measurement(scan, time.monotonic()))
+        self._report(self._order.scan_arriving())
+        self._localize(scan)
 
     def _on_tf_static(self, msg: Any) -> None:
         for tf in msg.transforms:
@@ -282,7 +284,7 @@ class LocalizerNode(LifecycleNode):
             f"map from {self.settings.map_topic}: {msg.info.width} × {msg.info.height} cells, "
             f"{len(segment_map)} walls, built in {time.perf_counter() - started:.2f} s")
         if self.localizer is not None:
-            self._restart(*self._current(), "new map")
+            self._go_on("new map")
 
     def _on_reinitialize(self, request: Any, response: Any) -> Any:
         """nav2's ``reinitialize_global_localization``: forget the pose, search the whole map."""
@@ -294,8 +296,14 @@ class LocalizerNode(LifecycleNode):
         not move; houghloc uses every scan already, so there is nothing to force."""
         return response
 
+    def _go_on(self, reason: str) -> None:
+        """Start again from the estimate: every pose held is published first."""
+        self._report(self._order.drain())
+        self._restart(*self._current(), reason)
+
     def _restart(self, pose: NDArray[np.float64] | None, cov: NDArray[np.float64] | None,
                  reason: str) -> None:
+        self._report(self._order.drain())  # the poses of the localizer that ends
         self._begin = Start(pose, cov, reason)
         self.localizer, self._last = None, None  # the next scan starts a new one
         if self.outputs is not None:
@@ -303,16 +311,10 @@ class LocalizerNode(LifecycleNode):
 
     # --------------------------------------------------------------------------- localizing
     def _release_waiting(self) -> None:
-        """Scans that waited ``odom_wait`` of wall time for the odometry go on without it."""
-        self._localize(self._order.overdue(time.monotonic()))
+        """Poses that waited ``odom_wait`` of wall time for the odometry are published without."""
+        self._report(self._order.overdue(time.monotonic()))
 
-    def _localize(self, due: list[Held]) -> None:
-        """The scans whose time has come (:class:`fusion.time_order.TimeOrder`), oldest first."""
-        for held in due:
-            assert isinstance(held.event, Scan)  # the node holds nothing else
-            self._localize_scan(held.event)
-
-    def _localize_scan(self, scan: Scan) -> None:
+    def _localize(self, scan: Scan) -> None:
         if self.map is None:
             self.dropped_scans += 1
             self._warn_once("no-map", f"no map yet: scans are dropped until one comes on "
@@ -320,7 +322,7 @@ class LocalizerNode(LifecycleNode):
             return
         if self.localizer is not None and scan.sensor not in self.localizer.config.sensors:
             # a laser heard for the first time: go on from the estimate with its mount known
-            self._restart(*self._current(), f"laser {scan.sensor} added")
+            self._go_on(f"laser {scan.sensor} added")
         if self.localizer is None:
             self.localizer = self._start(scan.t)
         try:
@@ -331,9 +333,21 @@ class LocalizerNode(LifecycleNode):
             self.get_logger().warning(f"scan at {scan.t:.3f} dropped: {err}")
             return
         self.scans += 1
-        self._last = estimate
-        assert self.outputs is not None
-        self.outputs.estimate(estimate, self.localizer.manager, self._odometry.at(estimate.t))
+        self._report(self._order.localized(estimate, estimate.t,
+                                           self.localizer.tracker.odometry_time,
+                                           time.monotonic()))
+
+    def _report(self, due: list[Held]) -> None:
+        """Publish the poses whose time has come (:class:`fusion.time_order.TimeOrder`), oldest
+        first, each at its scan's time as the filter holds it now."""
+        if not due:
+            return
+        assert self.localizer is not None and self.outputs is not None  # they came from it
+        for held in due:
+            estimate = settled(held, self.localizer.tracker)
+            self._last = estimate
+            self.outputs.estimate(estimate, self.localizer.manager,
+                                  self._odometry.at(estimate.t))
 
     def _start(self, t: float) -> Localizer:
         """A Localizer for the robot as it is now: each laser's mount from /tf_static when it
