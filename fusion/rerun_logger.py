@@ -1,7 +1,8 @@
 """Every stage of the pipeline recorded to Rerun: the logger the pipeline is given
 when somebody wants to look. Its public methods are exactly those of
 :class:`fusion.visualize.Logger`. How it looks: :mod:`fusion.rerun_view`; how the rows are
-batched: :mod:`fusion.rerun_columns`; the served web viewer: :mod:`fusion.rerun_serve`.
+batched: :mod:`fusion.rerun_columns`; how a batch of scans is drawn: :mod:`fusion.rerun_draw`;
+the served web viewer: :mod:`fusion.rerun_serve`.
 
 The entities drawn and their paths: :mod:`fusion.rerun_view`.
 
@@ -52,32 +53,23 @@ from numpy.typing import ArrayLike, NDArray
 from fusion.rerun_columns import (
     BATCH_SCANS,
     ErrorSeries,
-    PathPieces,
-    strips_from_points,
 )
-from fusion.rerun_scans import HoughRow, ScanRows, hough_columns, moved_points, scan_points
+from fusion.rerun_draw import DEGREES, METRICS, NO_LINES, ScanDrawing
+from fusion.rerun_scans import HoughRow, ScanRows, moved_points, scan_points
 from fusion.rerun_serve import GRPC_PORT, SERVE_HOST, WEB_PORT, die_with_parent, web_viewer_command
-from fusion.rerun_stream import ColumnStream
 from fusion.rerun_view import (
     ARROW_LENGTH,
     PAINTED,
-    PATH_COLOURS,
     SERIES_COLOUR,
     SERIES_COLOURS,
     SERIES_NAMES,
     STATE_LEVELS,
-    STATUS_COLOURS,
-    UNMATCHED,
     WALL_COLOUR,
-    LineColours,
     batch_point_rows,
-    covariance_ellipse,
     default_blueprint,
-    heading_vector,
     hough_marks,
 )
 from fusion.status import ScanStatus
-from houghloc.geometry import compose, relative
 
 if TYPE_CHECKING:
     from fusion.estimate import Estimate
@@ -86,29 +78,14 @@ if TYPE_CHECKING:
 _log = logging.getLogger(__name__)
 
 BATCH_SECONDS = 0.5  # wall-clock seconds a live (served) view lags at most
-WALL_TABLE_CELLS = 1 << 22  # scans × walls looked at in one pass for the matched walls (bytes)
 FILE_CHUNK_BYTES = 8 << 20  # bytes of immediate logs (Hough images) per chunk, when not serving
 FILE_FLUSH_SECONDS = 2.0  # ... or this long, whichever first
 
-METRICS = ("innovation/x", "innovation/y", "innovation/theta", "nis", "sigma/x", "sigma/y",
-           "sigma/theta", "matches", "error/position", "error/heading", "along_corridor")
-_DEGREES = np.array([1.0, 1.0, 180.0 / math.pi])
-_METRIC_ENTITY = {name: f"metrics/{name}" for name in METRICS}
-_STATUS_RGBA: dict[str, NDArray[np.uint8]] = {
-    status: np.array([rgba], dtype=np.uint8) for status, rgba in STATUS_COLOURS.items()}
-_UNMATCHED_RGBA = np.array([UNMATCHED], dtype=np.uint8)
-_NO_LINES = np.empty(0, np.int64)
 _NO_ANGLES = np.empty(0)
 
 
-def _path_style(name: str, recent: bool) -> Any:
-    """A path's look; the newest piece, near the robot, carries the path's name: the legend."""
-    return rr.LineStrips2D.from_fields(colors=PATH_COLOURS[name], radii=0.02, draw_order=2.0,
-                                       labels=name if recent else None, show_labels=recent)
-
-
 # ------------------------------------------------------------------------------- the logger
-class RerunLogger(ColumnStream):
+class RerunLogger(ScanDrawing):
     """Records every stage to its own :class:`rerun.RecordingStream` (never the global one).
 
     ``path``: write an ``.rrd`` file there. ``serve``: host a gRPC server on ``SERVE_HOST`` only
@@ -123,7 +100,8 @@ class RerunLogger(ColumnStream):
     images also every ``IMAGE_BLOCK_BYTES``); the state log and the hypotheses are logged at once.
 
     Every stage's writer shares the one stream, its batches, its time columns and the map's
-    colours (the stream and its columns: :class:`fusion.rerun_stream.ColumnStream`); the parts
+    colours (the stream and its columns: :class:`fusion.rerun_stream.ColumnStream`; a batch of
+    scans drawn on it: :class:`fusion.rerun_draw.ScanDrawing`); the parts
     that stand alone are apart (the look: :mod:`fusion.rerun_view`; the scans' raw rows and the
     arrays drawn from them: :mod:`fusion.rerun_scans`; the columns, paths and error series:
     :mod:`fusion.rerun_columns`; the served viewer: :mod:`fusion.rerun_serve`).
@@ -164,20 +142,14 @@ class RerunLogger(ColumnStream):
         self._batch_seconds = BATCH_SECONDS if serve else math.inf  # nobody watches a file live
         self._last_send = time.monotonic()
         self._scans_logged = 0
-        self._colours = LineColours()
         # compiled (or loaded from the cache) now, not on a scan of the stream
         batch_point_rows(np.zeros(1, bool), np.ones(1, np.int64), np.ones(1, np.int64),
-                         _NO_LINES, _NO_LINES, np.zeros(1, np.int64))
+                         NO_LINES, NO_LINES, np.zeros(1, np.int64))
         moved_points(np.zeros((1, 2)), np.zeros((1, 3)), np.ones(1, np.int64))
-        hough_marks(1.0, 1.0, 0.0, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_LINES,
-                    _NO_LINES)
-        self._walls: tuple[NDArray[np.float64], NDArray[np.intp]] = (
-            np.empty((0, 2, 2)), np.empty(0, np.intp))
-        self._n_lines = 0  # the map's lines
+        hough_marks(1.0, 1.0, 0.0, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, _NO_ANGLES, NO_LINES,
+                    NO_LINES)
         self._primary_sensor: str | None = None
-        self._paths = {name: PathPieces(f"world/path/{name}") for name in PATH_COLOURS}
         self._odometry: NDArray[np.float64] | None = None
-        self._odometry_anchor: tuple[NDArray, NDArray] | None = None  # (est₀, odom₀)
         self._error_series = ErrorSeries()
         self._rows = ScanRows()  # the scans since the last send
         self._truth_unlogged = False
@@ -231,7 +203,7 @@ class RerunLogger(ColumnStream):
             self._truth_unlogged = False
             rows.truth.append((row, self._error_series.latest_truth()))
         if primary:
-            rows.matched.append((row, getattr(correction, "matched_map_lines", _NO_LINES)))
+            rows.matched.append((row, getattr(correction, "matched_map_lines", NO_LINES)))
             rows.hough.append(HoughRow.of(row, correction))
             every = self.accumulator_every
             if (correction is not None and correction.grid is not None and every > 0
@@ -347,92 +319,6 @@ class RerunLogger(ColumnStream):
             self._primary_sensor = sensor
         return sensor == self._primary_sensor
 
-    def _send_robot(self, rows: ScanRows) -> None:
-        """The estimates (arrows coloured by status, 95 % ellipses), the truth and the paths."""
-        poses, covs = np.array(rows.pose), np.array(rows.cov)
-        colours = np.concatenate([_STATUS_RGBA.get(s, _UNMATCHED_RGBA) for s in rows.status])
-        self._send("world/robot/estimate", rr.Arrows2D, rows, None, None,
-                   origins=poses[:, :2], vectors=heading_vector(poses), colors=colours,
-                   labels=[str(s) for s in rows.status])
-        ellipses = covariance_ellipse(poses[:, :2], covs[:, :2, :2])
-        self._send("world/robot/covariance", rr.LineStrips2D, rows, None, None,
-                   strips=strips_from_points(ellipses.reshape(-1, 2),
-                                             np.full(len(poses), ellipses.shape[1])),
-                   colors=colours)
-        self._send_path(rows, "estimate", list(range(len(rows))), poses)
-        if rows.odometry:
-            picked = [row for row, _ in rows.odometry]
-            odometry = np.array([pose for _, pose in rows.odometry])
-            if self._odometry_anchor is None:
-                self._odometry_anchor = (poses[picked[0]], odometry[0])
-            first_estimate, first_odometry = self._odometry_anchor
-            self._send_path(rows, "odometry", picked,
-                            compose(first_estimate, relative(first_odometry, odometry)))
-        if rows.truth:
-            picked = [row for row, _ in rows.truth]
-            truth = np.array([pose for _, pose in rows.truth])
-            self._send("world/robot/truth", rr.Arrows2D, rows, picked, None,
-                       origins=truth[:, :2], vectors=heading_vector(truth))
-            self._send_path(rows, "truth", picked, truth)
-
-    def _send_path(self, rows: ScanRows, name: str, picked: list[int],
-                   poses: NDArray[np.float64]) -> None:
-        """A path's newest piece at each picked row and its older pieces' changes
-        (:class:`PathPieces`)."""
-        recent, updates = self._paths[name].extend(poses[:, :2])
-        entity = f"world/path/{name}/recent"
-        if entity not in self._styled:  # the style is built once: it costs more than a send
-            self._style_once(entity, _path_style(name, recent=True))
-        self._send(entity, rr.LineStrips2D, rows, picked, None, strips=recent)
-        for k, piece, line in updates:
-            batch = self._batches.get(piece)
-            if batch is None:  # the style is built once: it costs more than a row
-                batch = self._batch(piece, rr.LineStrips2D, _path_style(name, recent=False))
-            n = 1 if len(line) else 0
-            batch.add(rows.t[picked[k]], rows.scan[picked[k]], n, strips=[line][:n])
-
-    def _send_matched_walls(self, rows: ScanRows) -> None:
-        """The walls of the map lines each scan's lines matched, in the map's order, each in its
-        line's colour (the colour of the points that lie on it)."""
-        walls, line_of = self._walls
-        picked = [row for row, _ in rows.matched]
-        matched = [np.asarray(lines, np.intp) for _, lines in rows.matched]
-        counts = np.fromiter(map(len, matched), np.intp, len(matched))
-        n_lines = self._n_lines
-        rows_at_once = max(WALL_TABLE_CELLS // max(len(line_of), 1), 1)
-        scan_of, wall = [], []
-        for first in range(0, len(matched), rows_at_once):
-            part = matched[first:first + rows_at_once]
-            # scans × map lines: which lines each scan matched (ids beyond the map: no wall)
-            table = np.zeros((len(part), n_lines + 1), bool)
-            table[np.repeat(np.arange(len(part)), counts[first:first + rows_at_once]),
-                  np.minimum(np.concatenate(part), n_lines)] = True
-            # a scan's walls are those of its lines, in the map's order (np.isin(line_of, …))
-            scans, walls_seen = np.nonzero(table[:, line_of])
-            scan_of.append(scans + first)
-            wall.append(walls_seen)
-        scan_of_all = np.concatenate(scan_of) if scan_of else np.empty(0, np.intp)
-        wall_all = np.concatenate(wall) if wall else np.empty(0, np.intp)
-        self._colours.ensure(line_of)
-        self._send("world/map/matched", rr.LineStrips2D, rows, picked,
-                   np.bincount(scan_of_all, minlength=len(matched)),
-                   strips=strips_from_points(walls[wall_all].reshape(-1, 2),
-                                             np.full(len(wall_all), 2)),
-                   colors=self._colours.table[line_of[wall_all]])
-
-    # ---------------------------------------------------------------- Hough
-    def _send_hough(self, rows: ScanRows) -> None:
-        """Each scan's peaks, references and matches on the accumulator image."""
-        marks = hough_columns(rows.hough, self._colours)
-        picked = [mark.row for mark in rows.hough]
-        self._send("hough/peaks", rr.Points2D, rows, picked, marks["peak_lengths"],
-                   positions=marks["peaks"], colors=marks["peak_colours"])
-        self._send("hough/references", rr.Points2D, rows, picked, marks["reference_lengths"],
-                   positions=marks["references"], colors=marks["reference_colours"],
-                   labels=marks["reference_labels"])
-        self._send("hough/matches", rr.LineStrips2D, rows, picked, marks["match_lengths"],
-                   strips=marks["matches"], colors=marks["match_colours"])
-
     # ---------------------------------------------------------------- time series
     def _innovation(self, row: int, correction: Any, outcome: Any) -> None:
         """The update's innovation in (x, y, θ) and its NIS, when the scan updated the filter."""
@@ -443,30 +329,9 @@ class RerunLogger(ColumnStream):
         if outcome.dof < 3 and basis is not None and basis.shape[1] == outcome.dof:
             innovation = basis @ innovation  # observed directions back to (x, y, θ)
         if innovation.shape == (3,):
-            x, y, theta = (innovation * _DEGREES).tolist()
+            x, y, theta = (innovation * DEGREES).tolist()
             self._rows.innovation.append((row, x, y, theta))
         self._rows.nis.append((row, float(outcome.nis)))
-
-    def _send_metrics(self, rows: ScanRows) -> None:
-        """The time series: σ of x, y, θ and the lines matched at every scan; the innovation,
-        the NIS and the corridor placement where there is one."""
-        covs = np.array(rows.cov)
-        sigma = np.sqrt(np.maximum(np.diagonal(covs, axis1=1, axis2=2), 0.0)) * _DEGREES
-        for k, name in enumerate(METRICS[4:7]):
-            self._send(_METRIC_ENTITY[name], rr.Scalars, rows, None, None, scalars=sigma[:, k])
-        self._send(_METRIC_ENTITY["matches"], rr.Scalars, rows, None, None,
-                   scalars=np.array(rows.n_matches, dtype=float))
-        if rows.innovation:
-            values = np.array(rows.innovation)
-            picked = values[:, 0].astype(np.intp)
-            for k, name in enumerate(METRICS[:3]):
-                self._send(_METRIC_ENTITY[name], rr.Scalars, rows, picked, None,
-                           scalars=values[:, k + 1])
-        for name, series in (("nis", rows.nis), ("along_corridor", rows.along)):
-            if series:
-                values = np.array(series)
-                self._send(_METRIC_ENTITY[name], rr.Scalars, rows, values[:, 0].astype(np.intp),
-                           None, scalars=values[:, 1])
 
     def _errors(self, final: bool) -> None:
         """The error series of the estimates whose truth has arrived (:class:`ErrorSeries`)."""
