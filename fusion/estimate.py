@@ -8,6 +8,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from time import perf_counter
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,6 +17,7 @@ from fusion.corridor import CorridorMeasurement
 from fusion.ekf import UpdateOutcome
 from fusion.integrity import localized_probability
 from fusion.points_fix import PointsMeasurement
+from fusion.pose_history import TrackerCounts
 from fusion.status import ScanStatus, State
 from houghloc.localize import ScanCorrection
 
@@ -74,6 +76,28 @@ class LocalizerStats:
             yield
         finally:
             self.seconds[stage] = self.seconds.get(stage, 0.0) + perf_counter() - start
+
+    def summary(self, counts: TrackerCounts) -> dict[str, Any]:
+        """What became of the measurements, with the filter's ``counts`` of its updates and
+        refusals (``metrics.json``, :meth:`fusion.localizer.Localizer.summary`)."""
+        return {
+            "updates": counts.updates,
+            "rejections": counts.rejected,
+            "delayed_measurements": counts.delayed,
+            "dropped_measurements": counts.dropped + self.dropped,
+            "odometry_jumps": counts.odometry_jumps,
+            "odometry_backwards": counts.odometry_backwards,
+            "invalid_inputs": counts.invalid,
+            "invalid_odometry": self.invalid_odometry,
+            "stray_timestamps": self.stray_timestamps,
+            "fixes": {"accepted": self.accepted, "rejected": self.rejected,
+                      "ambiguous": self.ambiguous, "no_fix": self.no_fix,
+                      "partial_rank": self.partial_rank,
+                      "placed_along_corridor": self.placed_along,
+                      "polished_guesses": self.points_fixes, "late": self.late},
+            "statuses": dict(self.statuses),
+            "tracked_fraction": round(self.tracked_fraction, 6),
+        }
 
     @property
     def tracked_fraction(self) -> float:

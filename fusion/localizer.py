@@ -47,7 +47,7 @@ LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them a
 class Localizer:
     """Wheel odometry fused with Hough-transform pose fixes in an EKF, one event at a time.
 
-    Longer than most classes here (about 270 lines) because it is the one place where bad
+    Longer than most classes here (about 370 lines) because it is the one place where bad
     input meets the filter: every entry point (odometry, scans, points, landmarks) states and
     applies its rule for stray stamps, non-finite values and unknown sensors before the steps
     of :meth:`on_points`, which read as the algorithm."""
@@ -106,16 +106,8 @@ class Localizer:
         the robot could see any of it (a typo, or another map's frame)."""
         if pose.shape != (3,) or not np.isfinite(pose).all():
             raise ValueError(f"initial pose {pose.tolist()}: expected three finite numbers")
-        ends = np.concatenate((self.map.starts, self.map.ends))
-        low, high = ends.min(axis=0), ends.max(axis=0)
-        outside = float(np.linalg.norm(np.maximum(np.maximum(low - pose[:2], pose[:2] - high),
-                                                  0.0)))
         reach = max(s.max_range for s in self.config.sensors.values())
-        if outside > reach:
-            raise ValueError(
-                f"initial pose ({pose[0]:g}, {pose[1]:g}) lies {outside:.1f} m outside the "
-                f"map {self.map.source} (x {low[0]:.1f}…{high[0]:.1f} m, y {low[1]:.1f}…"
-                f"{high[1]:.1f} m), beyond the sensors' {reach:g} m: no wall could be seen")
+        self.map.check_within_reach(pose[:2], reach, "initial pose")
 
     @classmethod
     def from_config(cls, config: str | Path | LocalizerConfig | None, map: SegmentMap,
@@ -134,31 +126,12 @@ class Localizer:
         updates and refusals, the fixes' statuses, the manager's states and counts, the wheel
         scale learned and scan odometry's matches; the configuration last (``metrics.json``
         reports this beside the run's own figures)."""
-        stats, counts = self.stats, self.tracker.counts
-        start = self.initial_pose
         config = self.config.as_dict()
+        start = self.initial_pose
         config["initial_pose"] = None if start is None else [float(v) for v in start]
-        doc: dict[str, Any] = {
-            "initial_pose": config["initial_pose"],
-            "updates": counts.updates,
-            "rejections": counts.rejected,
-            "delayed_measurements": counts.delayed,
-            "dropped_measurements": counts.dropped + stats.dropped,
-            "odometry_jumps": counts.odometry_jumps,
-            "odometry_backwards": counts.odometry_backwards,
-            "invalid_inputs": counts.invalid,
-            "invalid_odometry": stats.invalid_odometry,
-            "stray_timestamps": stats.stray_timestamps,
-            "fixes": {"accepted": stats.accepted, "rejected": stats.rejected,
-                      "ambiguous": stats.ambiguous, "no_fix": stats.no_fix,
-                      "partial_rank": stats.partial_rank,
-                      "placed_along_corridor": stats.placed_along,
-                      "polished_guesses": stats.points_fixes, "late": stats.late},
-            "statuses": dict(stats.statuses),
-            "tracked_fraction": round(stats.tracked_fraction, 6),
-            "localized": self.localized,
-            "ambiguity": self.manager.summary(),
-        }
+        doc: dict[str, Any] = {"initial_pose": config["initial_pose"],
+                               **self.stats.summary(self.tracker.counts),
+                               "localized": self.localized, "ambiguity": self.manager.summary()}
         if self.wheel_scale is not None:
             doc["wheel_scale"] = {"estimate": round(self.wheel_scale.value, 6),
                                   "sigma": round(self.wheel_scale.sigma, 6),

@@ -200,6 +200,20 @@ class SegmentMap:
         return len(self.starts)
 
     # ---------------------------------------------------------------- lines
+    def check_within_reach(self, xy: ArrayLike, reach: float, what: str = "pose") -> None:
+        """A ValueError when ``xy`` lies farther than ``reach`` (m) outside the box of the map's
+        segments: no sensor of that reach could see any of the map from there."""
+        x, y = (float(v) for v in np.asarray(xy, dtype=float)[:2])
+        ends = np.concatenate((self.starts, self.ends))
+        low, high = ends.min(axis=0), ends.max(axis=0)
+        xy_arr = np.array((x, y))
+        outside = float(np.linalg.norm(np.maximum(np.maximum(low - xy_arr, xy_arr - high), 0.0)))
+        if outside > reach:
+            raise ValueError(
+                f"{what} ({x:g}, {y:g}) lies {outside:.1f} m outside the map {self.source} "
+                f"(x {low[0]:.1f}…{high[0]:.1f} m, y {low[1]:.1f}…{high[1]:.1f} m), beyond the "
+                f"sensors' {reach:g} m: no wall could be seen")
+
     def _merge_collinear(self, angle_tol: float, dist_tol: float) -> None:
         """Group segments on one infinite line; canonical form α ∈ [0, π), r signed."""
         d = (self.ends - self.starts) / self.lengths[:, None]

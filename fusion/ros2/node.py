@@ -346,8 +346,11 @@ class LocalizerNode(LifecycleNode):
         for held in due:
             estimate = settled(held, self.localizer.tracker)
             self._last = estimate
+            # map → odom only with the wheels' reading at the scan's stamp: composed with the
+            # last reading before it, the transform would be off by the motion since
+            covered = self._odometry.newest_time >= estimate.t
             self.outputs.estimate(estimate, self.localizer.manager,
-                                  self._odometry.at(estimate.t))
+                                  self._odometry.at(estimate.t) if covered else None)
 
     def _start(self, t: float) -> Localizer:
         """A Localizer for the robot as it is now: each laser's mount from /tf_static when it
