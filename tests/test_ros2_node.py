@@ -330,3 +330,75 @@ def test_the_node_and_the_replay_give_the_same_poses_on_the_same_out_of_order_st
     without = (run.scan_t >= late[0]) & (run.scan_t < late[1] + 0.5)
     assert errors[~without].max() < 0.02
     assert errors[without].max() < 0.25  # the readings of those 1.5 s came too late to be used
+
+
+def test_a_pose_published_without_its_odometry_comes_without_a_map_to_odom_transform():
+    """Scans whose odometry reading has come get their pose and map → odom on /tf; a scan whose
+    odometry never comes gets its pose after ``odom_wait`` but no transform: composed with the
+    reading before the scan, the transform would be off by the motion since (the robot drives
+    at 0.3 m/s here, 3 cm a scan)."""
+    from nav_msgs.msg import Odometry
+    from rclpy.executors import SingleThreadedExecutor
+    from sensor_msgs.msg import LaserScan
+    from tf2_msgs.msg import TFMessage
+
+    from benchmarks.bench_ros2 import EPOCH, _odometry
+    from fusion.ros2.messages import set_stamp, stamp_seconds
+    from fusion.ros2.node import LocalizerNode
+
+    run, _ = office_run(seconds=3.0, seed=2)
+    cfg = run.config.laser
+    increment = float(run.angles[1] - run.angles[0])
+
+    def scan(t: float, r) -> LaserScan:
+        msg = LaserScan()
+        msg.header.frame_id = "laser"
+        set_stamp(msg.header.stamp, EPOCH + t)
+        msg.angle_min, msg.angle_increment = float(run.angles[0]), increment
+        msg.angle_max = float(run.angles[0]) + increment * (len(r) - 1)
+        msg.range_min, msg.range_max = float(cfg.min_range), float(cfg.max_range)
+        msg.ranges = [float(v) for v in r]
+        return msg
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = LocalizerNode(run.map, LocalizerConfig.from_yaml("office-laser"), run.scan_truth[0],
+                         context=context)
+    client = rclpy.create_node("tf_probe", context=context)
+    tf_scans: list[float] = []
+    client.create_subscription(TFMessage, "/tf", lambda m: tf_scans.extend(
+        stamp_seconds(tf.header.stamp) - node.transform_tolerance - EPOCH
+        for tf in m.transforms), 100)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(client)
+    try:
+        assert node.outputs is not None and node.outputs.tf_pub is not None
+        deadline = time.monotonic() + 10.0
+        while (node.outputs.tf_pub.get_subscription_count() == 0
+               and time.monotonic() < deadline):
+            executor.spin_once(timeout_sec=0.05)
+        readings = list(zip(run.odom_t, run.odom_pose, strict=True))
+        covered = run.scan_t[:5]
+        for t, r in zip(covered, run.ranges[:5], strict=True):  # the odometry reaches each
+            for ot, pose in [o for o in readings if t - 0.1 < o[0] <= t + 0.02]:
+                node._on_odometry(_odometry(Odometry(), EPOCH + ot, pose))
+            node._on_scan(scan(t, r))
+        last = covered[-1] + 0.02
+        lone = float(run.scan_t[5])  # its odometry never comes
+        node._on_scan(scan(lone, run.ranges[5]))
+        assert node.scans == 6
+        time.sleep(node.settings.houghloc__odom_wait)
+        node._release_waiting()
+        deadline = time.monotonic() + 5.0
+        while len(tf_scans) < 5 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        for _ in range(10):  # a transform for the lone scan would have come by now
+            executor.spin_once(timeout_sec=0.05)
+        assert lone > last
+        np.testing.assert_allclose(sorted(tf_scans), covered, atol=1e-6)
+        assert node._last is not None and abs(node._last.t - (EPOCH + lone)) < 1e-6
+    finally:
+        executor.shutdown()
+        client.destroy_node()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
