@@ -12,7 +12,6 @@ none is coming in time:
 * the next scan arrives: odometry stamped behind the scans (a run of readings sharing one
   stamp) would otherwise hold it until the stamps catch up, and then give it all the motion
   since;
-* ``size`` estimates are held: the oldest goes;
 * the caller says so: the stream ended (:meth:`TimeOrder.drain`), or, on a robot, it waited
   ``wait`` seconds of wall time (:meth:`TimeOrder.overdue`).
 
@@ -36,8 +35,6 @@ ODOMETRY_WAIT = 0.25
 """s of wall time a pose waits for the odometry at its scan's stamp before it is reported
 without (on a robot: the node's ``houghloc.odom_wait``): several odometry periods at
 20–100 Hz."""
-HELD_ESTIMATES = 10
-"""Estimates held for the odometry at most; beyond, the oldest is reported without."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,10 +53,10 @@ class TimeOrder:
     """The estimates waiting for the odometry to cover their scans, oldest first (module
     docstring)."""
 
-    def __init__(self, wait: float = ODOMETRY_WAIT, size: int = HELD_ESTIMATES) -> None:
-        if not (wait >= 0.0 and size >= 1):
-            raise ValueError(f"wait {wait} s and size {size}: expected wait ≥ 0 and size ≥ 1")
-        self.wait, self.size = wait, size
+    def __init__(self, wait: float = ODOMETRY_WAIT) -> None:
+        if not wait >= 0.0:
+            raise ValueError(f"wait {wait} s: expected wait ≥ 0")
+        self.wait = wait
         self._held: deque[Held] = deque()
 
     def __len__(self) -> int:
@@ -81,9 +78,8 @@ class TimeOrder:
         estimates now due, oldest first."""
         if not self._held and (odometry_time is None or estimate.t <= odometry_time):
             return [Held(estimate, t_out, now)]
-        due = [self._held.popleft()] if len(self._held) == self.size else []
         self._held.append(Held(estimate, t_out, now, waited=True))
-        return due
+        return []
 
     def odometry(self, odometry_time: float | None) -> list[Held]:
         """An odometry reading was taken (``odometry_time``: the filter's newest reading): the

@@ -63,16 +63,14 @@ def test_poses_are_reported_in_scan_order_once_and_only_when_due(steps, wait):
     assert reported == list(range(scans))  # in scan order, each once
 
 
-def test_a_full_order_reports_its_oldest_and_a_covered_scan_waits_behind_an_older_one():
-    """Estimates held past the odometry leave oldest first: when ``size`` are held the oldest
-    is reported; an estimate the odometry covers waits behind an older one it does not."""
-    order = TimeOrder(size=2)
+def test_a_covered_scan_waits_behind_an_older_one():
+    """Estimates held past the odometry leave oldest first: one the odometry covers waits
+    behind an older one it does not."""
+    order = TimeOrder()
     assert order.localized(estimate(1.0), 1.0, 0.5) == []
     assert order.localized(estimate(0.7), 0.7, 0.5) == []
     assert order.odometry(0.8) == []  # 0.7 is covered, but waits behind the one at 1.0
-    assert [h.t_out for h in order.localized(estimate(1.2), 1.2, 0.8)] == [1.0]  # full
-    assert [h.t_out for h in order.odometry(0.8)] == [0.7]
-    assert [h.t_out for h in order.odometry(1.2)] == [1.2]
+    assert [h.t_out for h in order.odometry(1.0)] == [1.0, 0.7]
     assert order.overdue(100.0) == [] and order.drain() == []
     with pytest.raises(ValueError, match="wait"):
         TimeOrder(wait=-1.0)
