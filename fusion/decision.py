@@ -119,14 +119,12 @@ class FixDecider:
         leaves the scan off them: the robot is elsewhere, or the lines were matched to the
         wrong walls, however small the innovation."""
         fit, points, kinds = self.fit, scan.points, scan.kinds
-        # the fractions of the scan on walls at the guess and at the fix, once (in one pass),
-        # for every check that wants them
-        want_guess = fit.judges_by_fit
-        want_fix = fix.rank > 0 and (fit.judges_fixes or want_guess)
-        wanted = [pose for pose, want in ((scan.guess, want_guess), (fix.pose, want_fix)) if want]
-        fits = fit.fractions(np.array(wanted), points, kinds).tolist() if wanted else []
-        guess_fit = fits.pop(0) if want_guess else None
-        fix_fit = fits.pop(0) if want_fix else None
+        # the fractions of the scan on walls at the guess and at the fix (when there is one),
+        # in one pass, for every check that wants them
+        wanted = [scan.guess, fix.pose] if fix.rank > 0 else [scan.guess]
+        fits = fit.fractions(np.array(wanted), points, kinds).tolist()
+        guess_fit = fits[0]
+        fix_fit = fits[1] if fix.rank > 0 else None
         matched = 0 if fix.matches is None else len(fix.matches)
         vouched = not fix.ambiguous and fix.rank > 0 and matched >= scan.min_fix_lines
         by_fit = (not vouched and fix.rank > 0

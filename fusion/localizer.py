@@ -29,7 +29,6 @@ from fusion.motion import OdometryCalibration
 from fusion.points_fix import PointsMeasurement
 from fusion.scan_odometry import ScanOdometry
 from fusion.scan_odometry import warm_up as warm_up_scan_matching
-from fusion.settings.hypotheses import HypothesisConfig
 from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
 from fusion.tracker import warm_up as warm_up_filter
@@ -82,8 +81,7 @@ class Localizer:
             warm_up_scan_matching()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
                                         make_tracker=self._tracker_at)
-        self.decider = FixDecider(map, self.manager.fit,
-                                  self.config.ambiguity.hypotheses or HypothesisConfig())
+        self.decider = FixDecider(map, self.manager.fit, self.config.ambiguity.hypotheses)
         # the map's look-ups for global matching, now rather than on the scan that first needs
         # them (the angle index and distance transform of a building take tens of ms)
         for kinds in {s.hough.reference_kinds for s in self.config.sensors.values()}:

@@ -16,6 +16,7 @@ from fusion.ambiguity.manager import AmbiguityManager
 from fusion.ambiguity.spacing import visible_parallel_spacing
 from fusion.decision import TrackingScan
 from fusion.events import Odometry, PointSet, Scan
+from fusion.integrity import is_localized
 from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.sim import (
     CameraConfig,
@@ -36,31 +37,10 @@ from tests.conftest import REPO
 CAMERA = REPO / "fusion" / "configs" / "robocup-camera.yaml"
 OFFICE = REPO / "fusion" / "configs" / "office-laser.yaml"
 
-# The manager's rules before hypotheses were followed (the score, tie, prior and misfit rules,
-# opt-in since): give up tracking after five unusable scans or when σ passes half the spacing
-# of parallel lines in view, and decide among a global match's poses by those rules; with the
-# line extraction, gates and single-line fixes those rules were written for.
-RULES = {"hypotheses": None, "max_scans_without_fix": 5, "through_wall_scans": None,
-         "max_position_sigma_fraction": 0.5, "max_fit_loss": None, "min_fit_gain": None,
-         "hold_fit_ratio": None, "local_search_xy": None}
-RULES_HOUGH = {"min_line_length": 0.4, "piece_gap": 1.0, "gate_probability": 0.999,
-               "decisive_d2_margin": None}
-
-
-def with_rules(path=OFFICE, **ambiguity: object) -> LocalizerConfig:
-    """The scenario's configuration with the rules-based manager (and ``ambiguity`` changes)."""
+def with_ambiguity(path=OFFICE, **ambiguity: object) -> LocalizerConfig:
+    """The scenario's configuration with ``ambiguity`` changes."""
     base = LocalizerConfig.from_yaml(path)
-    gm = base.ambiguity.global_match
-    sensors = {name: s.model_copy(update={"min_fix_lines": 1, "hough": s.hough.model_copy(
-        update=RULES_HOUGH)}) for name, s in base.sensors.items()}
-    return base.model_copy(update={
-        "sensors": sensors,
-        "filter": base.filter.model_copy(update={"gate_probability": 0.999, "initial_sigma_xy": 0.1,
-                                                 "initial_sigma_theta_deg": 3.0}),
-        "ambiguity": base.ambiguity.model_copy(update={
-            **RULES, "global_match": gm.model_copy(update={"hough": gm.hough.model_copy(
-                update={**RULES_HOUGH, "line_rho_floor": 0.0005, "line_theta_floor_deg": 0.01})}),
-            **ambiguity})})
+    return base.model_copy(update={"ambiguity": base.ambiguity.model_copy(update=ambiguity)})
 
 
 def drive(run, loc: Localizer, on_odometry=None) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -111,27 +91,39 @@ def test_nearest_neighbour_locks_onto_the_wrong_field_line_tracking_reports_it(r
     assert ours.ambiguous and "fits 2 map lines" in ours.reason
 
 
-def test_manager_resolves_parallel_lines_by_set_matching():
-    """Mid-run the filter is put 2 m off with σ = 2 m (more than half the 3.25 m between the
-    painted lines): the
-    manager leaves tracking, matches accumulated views as a set (a mirror tie on the symmetric
-    field, broken by the filter's belief) and tracks again within a couple of seconds."""
+def test_manager_leaves_parallel_lines_for_set_matching_without_a_wrong_pose():
+    """Mid-run the filter is put 2 m off with σ = 2 m, more than half the spacing of the painted
+    lines in view: with ``max_position_sigma_fraction`` the manager leaves tracking at once and
+    matches accumulated views as a set. On the symmetric field with a camera's few lines in
+    view, the poses followed do not single out the right one before the run ends (15 s later)
+    and none is reported localized: "lost" is the right answer. (The retired rules, which broke
+    such ties by the filter's last belief, took the right pose here within 3 s:
+    docs/experiments.md, "Ties retired".)"""
     run = simulate(scenario_preset("robocup-camera", seed=3, duration=30))
-    loc = Localizer(run.map, with_rules(CAMERA, max_scans_without_fix=25), run.odom_truth[0])
-    state = {"done": False}
-
-    def inject(t, loc):
-        if not state["done"] and t >= 15.0:
-            loc.tracker.reset(loc.tracker.pose + [2.0, 0.0, 0.0],
-                              np.diag([2.0**2, 2.0**2, math.radians(3) ** 2]))
-            state["done"] = True
-
-    times, errors, _ = drive(run, loc, inject)
+    config = with_ambiguity(CAMERA, max_position_sigma_fraction=0.5)
+    loc = Localizer(run.map, config, run.odom_truth[0])
+    wrong_and_sure: list[float] = []
+    corrupted = False
+    for ev in run.events():
+        if isinstance(ev, Odometry):
+            loc.on_odometry(ev.t, ev.x, ev.y, ev.theta)
+            if not corrupted and ev.t >= 15.0:
+                loc.tracker.reset(loc.tracker.pose + [2.0, 0.0, 0.0],
+                                  np.diag([2.0**2, 2.0**2, math.radians(3) ** 2]))
+                corrupted = True
+            continue
+        if not isinstance(ev, PointSet):
+            continue
+        est = loc.on_points(ev.t, ev.points, ev.sensor)
+        truth = interpolate_poses(np.array([ev.t]), run.odom_t, run.odom_truth)[0]
+        if math.hypot(*(est.pose[:2] - truth[:2])) > 0.3 and is_localized(
+                est.localized_probability):
+            wrong_and_sure.append(ev.t)
     reasons = [tr.reason for tr in loc.manager.transitions]
     assert any("between parallel lines in view" in r for r in reasons), reasons
     assert any(tr.new is State.RELOCALIZING for tr in loc.manager.transitions)
-    settle = settled_after(times, errors, 15.0)
-    assert settle is not None and settle < 3.0, settle
+    assert wrong_and_sure == []
+    assert loc.manager.followed
 
 
 def kidnap_run(seed: int):
@@ -166,21 +158,25 @@ def test_kidnapped_robot_is_detected_and_recovered():
     assert confident_wrong == 0
 
 
-def test_fixes_off_the_walls_after_a_kidnap_are_not_used():
-    """Put down in a room, the robot matches one wall (rank 2) and every innovation is small
-    while the heading follows the odometry's drift; the scan lies off the map's walls at those
-    fixes (14 % of its points on walls, against over 69 % for good fixes), so they are misfits,
-    not updates, and the kidnap is found within half a second."""
-    recovered, confident_wrong, loc, statuses = kidnap_trial(seed=10, config=with_rules())
-    assert confident_wrong == 0
-    assert statuses.count("misfit") >= 1 and loc.manager.counts["misfits"] >= 1
-    assert recovered is not None and recovered <= 1.5
-    # without the check no fix is a misfit; here the scan after the kidnap then finds no fix
-    # and the next is rejected, so the kidnap is found all the same (a centimetre less in the
-    # guess decides that: at baa52de that scan's fix was taken, and 39 wrong fixes followed)
-    unchecked = with_rules(misfit_ratio=0.0)
-    recovered, _, _, statuses = kidnap_trial(seed=10, config=unchecked)
-    assert "misfit" not in statuses and recovered is not None
+# Kidnaps (3 m, 35°) that land where the office repeats itself, each with what makes it hard.
+# Measured with the defaults: recovered 1.6, 3.0, 3.2 and 3.3 s after the kidnap.
+LOOK_ALIKE_KIDNAPS = {
+    10: "put down in a room, one wall in view: its single-line fixes steer the heading wherever "
+        "the odometry drifts while every innovation stays small",
+    1: "near the corridor's west end, halfway between the last belief and the look-alike "
+       "place 7 m further east",
+    27: "near a room's corner: the first global matches propose look-alike corners elsewhere",
+    12: "in the corridor 0.2 m from a wall, facing along it: no room's wall in view for 5 s",
+}
+
+
+@pytest.mark.parametrize("seed", list(LOOK_ALIKE_KIDNAPS))
+def test_kidnaps_into_look_alike_places_are_recovered_without_a_wrong_fix(seed):
+    recovered, confident_wrong, loc, _ = kidnap_trial(seed)
+    assert confident_wrong == 0, LOOK_ALIKE_KIDNAPS[seed]
+    assert recovered is not None and recovered <= 5.0, (recovered, LOOK_ALIKE_KIDNAPS[seed])
+    reasons = [tr.reason for tr in loc.manager.transitions]
+    assert any(r.startswith("following") for r in reasons), reasons
 
 
 def test_misfit_is_relative_to_recent_fixes(office):
@@ -237,12 +233,12 @@ def test_local_search_recovers_a_motion_the_robot_did_not_make(office, slip):
     """The odometry reports a turn of 12-16° that the robot did not make (a wheel slip in a turn
     on the spot), with or without a short drive: far outside the filter's gates, so no fix
     matches. The scan's lines matched near the dead-reckoned pose find the robot again on that
-    scan; without the local re-search tracking is given up."""
+    scan; without the local re-search no fix is found again."""
     from fusion.sim.config import LaserConfig
     from fusion.sim.laser import laser_scan
 
     def replay(local: bool) -> tuple[list[str], float]:
-        config = with_rules(hold_fit_ratio=0.9, local_search_xy=1.0 if local else None)
+        config = with_ambiguity(local_search_xy=1.0 if local else None)
         truth = np.array([5.0, 6.0, 0.3])
         loc = Localizer(office, config, initial_pose=truth)
         rng = np.random.default_rng(1)
@@ -385,47 +381,18 @@ def test_local_search_candidate_in_a_corridor_keeps_the_guess_along_it(office):
     assert _polished(empty, guess) is None
 
 
-def test_look_alike_rooms_tie_broken_by_the_last_trusted_pose():
-    """Put down in the south room that repeats 7 m further east (same door, same walls in view),
-    the views tie between the two rooms; after a window of scans that fit both equally well (and
-    as well as tracking did), the one 3 m from the last trusted pose is taken over the one 9 m
-    away. Without the rule the tie holds until the cabinet comes into view."""
-    recovered, confident_wrong, loc, _ = kidnap_trial(seed=4, config=with_rules())
-    reasons = [tr.reason for tr in loc.manager.transitions]
-    assert any("tie broken by the last trusted pose" in r for r in reasons), reasons
-    assert recovered is not None and recovered <= 2.5 and confident_wrong == 0
-    no_prior = with_rules(kidnap_prior_sigma=None)
-    later, confident_wrong, loc, _ = kidnap_trial(seed=4, config=no_prior)
-    assert loc.manager.counts["ties"] >= 10 and confident_wrong == 0
-    assert later is None or later > 5.0
-
-
-def test_corridor_look_alike_tie_broken_by_a_steady_small_lead():
-    """Put down near the corridor's west end, facing east, halfway between the last trusted pose
-    and the look-alike place 7 m further east (2.9 m against 4.2 m: too close to choose by
-    distance). The true pose has about 1.5 % more of each scan's points on walls (a wall seen
-    through a door), on every scan: that breaks the tie; waiting for a 10 % lead takes 9 s."""
-    recovered, confident_wrong, loc, _ = kidnap_trial(seed=1, config=with_rules())
-    reasons = [tr.reason for tr in loc.manager.transitions]
-    assert not any("last trusted pose" in r for r in reasons), reasons
-    assert any(r.startswith("tie broken:") for r in reasons), reasons
-    assert recovered is not None and recovered <= 2.5 and confident_wrong == 0
-    patient = with_rules(tie_steady_lead=None)
-    later, confident_wrong, _, _ = kidnap_trial(seed=1, config=patient)
-    assert later is not None and later > 5.0 and confident_wrong == 0
-
-
-def test_no_rule_chooses_among_ties_that_miss_the_right_pose():
-    """Put down near a room's corner, the first global matches tie between look-alike corners
-    elsewhere and miss the right one. The nearest of them (3.3 m from the last trusted pose,
-    the next 10 m) and the one that leads on every scan both fit the scans visibly worse than
-    tracking did, so neither is taken; the right pose is found by a later match."""
-    recovered, confident_wrong, loc, _ = kidnap_trial(seed=27, config=with_rules())
-    reasons = [tr.reason for tr in loc.manager.transitions]
-    assert loc.manager.counts["ties"] >= 3, reasons
-    assert not any("last trusted pose" in r for r in reasons), reasons
+def test_look_alike_rooms_told_apart_by_the_displacement_prior():
+    """Put down in the south room that repeats 7 m further east (same door, same walls in
+    view): both rooms are followed and fit the scans equally well; the one 3 m from the last
+    belief is likelier by the displacement prior (``kidnap_prior_sigma``) than the one 9 m
+    away, and is taken within 2.6 s. Without the prior the two stay level until the cabinet
+    comes into view, 8.3 s after the kidnap."""
+    recovered, confident_wrong, _, _ = kidnap_trial(seed=4)
+    assert recovered is not None and recovered <= 3.0 and confident_wrong == 0
+    later, confident_wrong, _, _ = kidnap_trial(seed=4,
+                                                config=with_ambiguity(kidnap_prior_sigma=None))
     assert confident_wrong == 0
-    assert recovered is not None and recovered <= 5.0
+    assert later is None or later > 5.0
 
 
 @pytest.mark.slow
@@ -472,7 +439,8 @@ def test_global_start_without_an_initial_pose():
     managers: list = []
     settle = global_start_trial(seed=0, manager_out=managers)
     assert settle is not None and settle <= 10.0
-    assert managers[0].counts["ties_broken_by_distance"] == 0  # no trusted pose to start from
+    taken = [tr for tr in managers[0].transitions if tr.new is State.TRACKING]
+    assert taken and taken[0].reason.startswith("relocalized"), managers[0].transitions
 
 
 @pytest.mark.slow
@@ -480,13 +448,10 @@ def test_global_start_twenty_random_starts():
     """The office's rooms repeat every 7 m: from no pose at all, the followed hypotheses are
     right within a second on 15 of 20 starts, but where look-alike places fit the scans as
     well as the right one the likeliest changes hands until one fits better (measured: 17
-    within 10 s, 19 within the 25 s run). The earlier rules, which break such ties by a steady
-    lead, settle 19 within 10 s."""
+    within 10 s, 19 within the 25 s run)."""
     settles = [global_start_trial(seed) for seed in range(20)]
     assert sum(s is not None and s <= 10.0 for s in settles) >= 17, settles
     assert sum(s is not None and s < 25.0 for s in settles) >= 19, settles
-    ruled = [global_start_trial(seed, config=with_rules()) for seed in range(20)]
-    assert sum(s is not None and s <= 10.0 for s in ruled) >= 19, ruled
 
 
 def test_symmetric_field_reports_both_mirror_hypotheses():
@@ -584,19 +549,6 @@ def test_corridor_seen_along_its_length_is_placed_by_sliding(office):
     no_slide = cfg.model_copy(update={"slide_along_parallel": False})
     off = global_match(lines, points, office, no_slide)
     assert not off.hypotheses and "non-parallel" in off.reason
-
-
-def test_kidnap_into_a_corridor_facing_along_it():
-    """Put down in the corridor 0.2 m from a wall, facing along it: until a room's wall shows
-    through a door (5.3 s after the kidnap), only the sliding search places the robot."""
-    recovered, confident_wrong, _, _ = kidnap_trial(seed=12, config=with_rules())
-    assert recovered is not None and recovered <= 5.0 and confident_wrong == 0
-    base = with_rules()
-    gm = base.ambiguity.global_match.model_copy(update={"slide_along_parallel": False})
-    no_slide = base.model_copy(update={"ambiguity": base.ambiguity.model_copy(
-        update={"global_match": gm})})
-    later, _, _, _ = kidnap_trial(seed=12, config=no_slide)
-    assert later is None or later > 5.0
 
 
 # references in a few directions, a little apart: parallel pairs at every spacing

@@ -47,19 +47,6 @@ class ScanFit:
         self.used, self.guesses, self.fixes = (
             deque(maxlen=window), deque(maxlen=window), deque(maxlen=window))
 
-    @property
-    def judges_fixes(self) -> bool:
-        """Does :meth:`fix_fits` look at the scan at all?"""
-        return self.config.misfit_ratio > 0.0 or self.judges_by_fit
-
-    @property
-    def judges_by_fit(self) -> bool:
-        """Do the checks need the fraction of each scan's points on walls at the guess?"""
-        c = self.config
-        return c.max_fit_loss is not None or c.min_fit_gain is not None or \
-            c.hold_fit_ratio is not None or c.local_search_xy is not None or \
-            c.hypotheses is not None
-
     def fractions(self, poses: NDArray, points: NDArray,
                   kinds: tuple[str, ...] = ("wall",)) -> NDArray[np.float64]:
         """:meth:`fraction` at each of ``poses`` (P×3) at once."""
@@ -170,7 +157,7 @@ class ScanFit:
         moved the scan off walls that the guess had it on (a wrong correspondence).
         ``fraction``: the fix's own fraction on walls, if the caller has it."""
         loss = self.config.max_fit_loss if guess_fit is not None else None
-        if not self.judges_fixes or len(points) == 0:
+        if len(points) == 0:
             return True
         if fraction is None:
             fraction = self.fraction(pose, points, kinds)
@@ -198,14 +185,6 @@ class ScanFit:
         if len(self.tracked) < 20:
             return None
         return float(np.quantile(np.fromiter(self.tracked, float), quantile))
-
-    def like_tracking(self, mean_fit: float) -> bool:
-        """Does a followed pose fit the scans nearly as well as tracking did before it was
-        abandoned (``tie_min_fit`` of the recent fixes' median; of 1 without any)? A small
-        steady lead only ranks the tied poses; when the right pose is not among them, the best
-        of the wrong ones leads too, but fits visibly worse than tracking did."""
-        typical = float(np.median(self.used)) if self.used else 1.0
-        return mean_fit >= self.config.tie_min_fit * typical
 
 
 def _reach(points: NDArray) -> float:

@@ -19,8 +19,7 @@ States and triggers (:class:`fusion.status.State`)::
 Where tracking is given up: :meth:`AmbiguityManager.tracking_step`, on the evidence
 :class:`~fusion.ambiguity.tracking.TrackingWatch` keeps. Where a pose is taken back:
 :meth:`AmbiguityManager.collecting_step`, through
-:class:`~fusion.ambiguity.relocalization.Relocalization`. With ``hypotheses: null`` a global
-match's poses are judged by score, and ties by the rules of :mod:`fusion.ambiguity.ties`.
+:class:`~fusion.ambiguity.relocalization.Relocalization`.
 
 Every transition is recorded with its reason (``transitions``), counted in ``counts``, logged,
 and written to ``metrics.json`` (:meth:`AmbiguityManager.summary`).
@@ -69,7 +68,7 @@ class AmbiguityManager:
     Its states' work is done by its parts: while tracking, :class:`TrackingWatch` (the
     evidence for giving tracking up) and :class:`LocalSearch` (a pose near the
     guess after a slip); otherwise :class:`Relocalization` (views, global matches, followed
-    hypotheses or ties). What is left here is every transition and what it resets, so that the
+    hypotheses). What is left here is every transition and what it resets, so that the
     state machine reads in one place (:meth:`_go`)."""
 
     map: SegmentMap
@@ -79,7 +78,8 @@ class AmbiguityManager:
     counts: Counter = field(default_factory=Counter)
     logger: Logger | None = None
     # a filter at a pose with a covariance, for each followed hypothesis (the Localizer's own
-    # settings); None: hypotheses are not followed by filters
+    # settings); None: a manager that only tracks (a global match would have nothing to follow
+    # its poses with)
     make_tracker: MakeTracker | None = None
 
     def __post_init__(self) -> None:
@@ -155,17 +155,17 @@ class AmbiguityManager:
                 f"walls (guess {guess_fit:.2f})"))
         cov = 0.5 * (found.cov + found.cov.T) + reinit_floor(self.config)
         carried = scan.scans_broke and self._unexplained(shift, guess_cov, hough)
-        if (carried or found.along_kept) and (
-                odom is not None and self.config.hypotheses is not None):
+        if (carried or found.along_kept) and odom is not None:
             # The search explains a motion the odometry did not report, and the neighbourhood
             # searched does not bound it: the robot was carried (``scans_broke``: this scan
             # fitted its predecessor nowhere near the wheels' increment, and the odometry's
-            # noise cannot explain the shift found either), or the scan did not observe the
-            # position along the corridor in view (the pose found keeps the guess's). The same
-            # motion may have carried the robot to a look-alike place beyond the neighbourhood
-            # (a door further on). The pose is followed as tracking's belief while a global
-            # match, of this view at once, proposes its rivals; it is taken when the scans
-            # single it out (mode_probability is 0 until then).
+            # noise cannot explain the shift found either), the guess itself may be farther
+            # off than the neighbourhood reaches (its covariance says so), or the scan did not
+            # observe the position along the corridor in view (the pose found keeps the
+            # guess's). The robot may then be at a look-alike place beyond the neighbourhood
+            # (a door further on, the next painted line). The pose is followed as tracking's
+            # belief while a global match, of this view at once, proposes its rivals; it is
+            # taken when the scans single it out (mode_probability is 0 until then).
             self.belief.prior = (found.pose.copy(), cov.copy(), np.asarray(odom, float).copy())
             self._go(t, State.COLLECTING, "local re-search: the odometry missed a motion; a "
                      "global match contests the pose found")
@@ -265,15 +265,10 @@ class AmbiguityManager:
         belief = self.belief
         if new is State.COLLECTING and self.state is State.TRACKING:
             self.relocalization.start(t)
-            if belief.trusted_by_prior_only:  # it may have been the wrong one of the tie
-                belief.last_trusted = None
-                belief.trusted_by_prior_only = False
         if new is State.LOST:
-            belief.prior = None  # no belief to break ties with
+            belief.prior = None  # no belief to seed the followed poses with
         if new is State.TRACKING or self.state is State.TRACKING:
             self.relocalization.match = None  # a match under way is for the views it started from
-        if new is State.TRACKING:
-            belief.trusted_by_prior_only = False  # set again by the caller when it is so
         self.transitions.append(Transition(t, self.state, new, reason))
         self.counts[f"{self.state.value}->{new.value}"] += 1
         self.state = new

@@ -1,10 +1,9 @@
 """While not tracking: the paper's strategy (ii) — views accumulated, the whole set of lines
 matched to the whole map, its poses followed until one is taken (:class:`Relocalization`).
 
-With followed hypotheses (the default) each pose of a global match gets its own filter
-(:class:`HypothesisBank`), tracking's last belief among them; with ``hypotheses: null`` a
-match's poses are judged by score and ties by the rules of :mod:`fusion.ambiguity.ties`.
-Transitions go through the state machine's ``go`` (:mod:`fusion.ambiguity.manager`).
+Each pose of a global match gets its own filter (:class:`HypothesisBank`), tracking's last
+belief among them, and the scans decide between them. Transitions go through the state
+machine's ``go`` (:mod:`fusion.ambiguity.manager`).
 """
 
 from __future__ import annotations
@@ -18,7 +17,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.ambiguity.fit import ScanFit
-from fusion.ambiguity.ties import Ties, break_with_prior
 from fusion.ambiguity.tracking import Belief
 from fusion.ambiguity.views import Views
 from fusion.hypotheses import BankVerdict, HypothesisBank, MakeTracker
@@ -27,7 +25,7 @@ from fusion.status import State
 from fusion.visualize import Logger
 from houghloc import GlobalResult, HoughConfig, Hypothesis, SegmentMap, observe_lines
 from houghloc.geometry import compose, relative
-from houghloc.global_match import advance, finish, global_match_stages
+from houghloc.global_match import advance, global_match_stages
 from houghloc.match_result import Stages
 
 
@@ -59,7 +57,7 @@ GoTo = Callable[[float, State, str], None]  # the state machine's transition, wi
 
 
 class Relocalization:
-    """Views, the global match under way, and the followed poses (or the tied ones)."""
+    """Views, the global match under way, and the followed poses."""
 
     def __init__(self, map: SegmentMap, config: AmbiguityConfig, fit: ScanFit, belief: Belief,
                  counts: Counter, go: GoTo, logger: Logger | None = None,
@@ -73,7 +71,6 @@ class Relocalization:
         self.logger = logger
         self.make_tracker = make_tracker
         self.views = Views(config)
-        self.ties = Ties(config)
         self.bank: HypothesisBank | None = None
         self.match: PendingMatch | None = None
 
@@ -85,7 +82,7 @@ class Relocalization:
         late)."""
         self.views.restart()
         self.bank = None
-        if self.config.hypotheses is None or self.make_tracker is None or self.belief.prior is None:
+        if self.make_tracker is None or self.belief.prior is None:
             return
         pose, cov, odom = self.belief.prior
         self.bank = self._new_bank()
@@ -93,16 +90,12 @@ class Relocalization:
 
     def step(self, t: float, odom: NDArray, points: NDArray, kinds: tuple[str, ...],
              hough: HoughConfig | None) -> Decision:
-        """One scan while not tracking: every followed (or tied) pose takes it, and may be taken;
+        """One scan while not tracking: every followed pose takes it, and may be taken;
         else it joins the views, and when they are enough (and no match is under way) a global
         match of them starts; a match under way advances by ``match_lookups_per_scan``."""
         if self.bank is not None and hough is not None:
             decision = self._take(t, self.bank.step(t, odom, points, hough,
                                                     self._least_right_fit()))
-            if decision.reset_pose is not None:
-                return decision
-        elif self.ties and hough is not None:
-            decision = self._follow_ties(t, odom, points, kinds, hough)
             if decision.reset_pose is not None:
                 return decision
         added = self.views.add(odom, points)
@@ -123,24 +116,17 @@ class Relocalization:
                                                kinds=kinds))
 
     def _match_step(self, t: float, odom: NDArray) -> Decision:
-        """The global match under way: its next stages, ``match_lookups_per_scan`` of work,
-        when its poses are followed (no scan waits for a whole match); whole otherwise. When it
-        ends, its poses, found in the frame of the views it matched, are carried to this scan
-        by the odometry since."""
+        """The global match under way: its next stages, ``match_lookups_per_scan`` of work (no
+        scan waits for a whole match). When it ends, its poses, found in the frame of the views
+        it matched, are carried to this scan by the odometry since."""
         assert self.match is not None
-        following = self.config.hypotheses is not None and self.make_tracker is not None
-        result = (advance(self.match.stages, self.config.match_lookups_per_scan) if following
-                  else finish(self.match.stages))
+        result = advance(self.match.stages, self.config.match_lookups_per_scan)
         if result is None:
             return Decision()
         start = self.match.odom
         self.match = None
         self.counts["global_matches"] += 1
-        if following:
-            return self._seed_bank(t, result, start, odom)
-        decision = self._decide(t, result)
-        decision.result = result
-        return decision
+        return self._seed_bank(t, result, start, odom)
 
     def _seed_bank(self, t: float, result: GlobalResult, matched_at: NDArray,
                    odom: NDArray) -> Decision:
@@ -171,12 +157,14 @@ class Relocalization:
         self.go(t, State.LOST if lost else State.COLLECTING, reason)
 
     def _new_bank(self) -> HypothesisBank:
-        assert self.config.hypotheses is not None and self.make_tracker is not None
+        if self.make_tracker is None:
+            raise RuntimeError("following a global match's poses needs a filter for each: the "
+                               "manager was made without make_tracker (a Localizer gives it "
+                               "its own)")
         return HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
                               self.fit.fractions, self.fit.shares)
 
     def _least_right_fit(self) -> float | None:
-        assert self.config.hypotheses is not None
         return self.fit.least_right(self.config.hypotheses.fit_quantile)
 
     def _take(self, t: float, verdict: BankVerdict, why: str = "") -> Decision:
@@ -185,86 +173,19 @@ class Relocalization:
             return Decision()
         self.bank = None
         self.views.failures = 0
-        self.ties.clear()
         self.views.clear()
         self.go(t, State.TRACKING, f"relocalized: {verdict.reason}{why}")
         return Decision(verdict.pose, verdict.cov)
 
-    # ------------------------------------------------------------------ rules-based (ties)
-    def _decide(self, t: float, result: GlobalResult) -> Decision:
-        """Without followed hypotheses: the best pose when it scores ``min_score`` and no rival
-        comes within ``decisive_margin``; rivals are a tie (:class:`Ties`) unless the tracker's
-        last belief singles one out."""
-        good = [h for h in result.hypotheses if h.score >= self.config.min_score]
-        if not good:
-            self._failed(t, f"no global hypothesis ({result.reason or 'none scored enough'})")
-            return Decision()
-        top = good[0].score
-        rivals = [h for h in result.hypotheses[1:] if h.score > top - self.config.decisive_margin]
-        if result.ambiguous or rivals:
-            tied = [good[0], *rivals]
-            chosen = (break_with_prior(tied, self.belief.prior, self.views.latest_odom)
-                      if self.views else None)
-            if chosen is not None:
-                return self._accept(t, chosen, "tie broken by the last tracked pose")
-            if not self.ties:  # a new tie: follow each of its poses from now on
-                self.ties.start(tied, self.views.latest_odom)
-            self.counts["ties"] += 1
-            self.go(t, State.COLLECTING,
-                    f"{len(tied)} hypotheses tie (score {top:.2f}): symmetric map, collecting")
-            self.log_hypotheses(t, tied)
-            return Decision()
-        return self._accept(t, good[0], "")
-
-    def _accept(self, t: float, best: Hypothesis, how: str) -> Decision:
-        self.views.failures = 0
-        self.ties.clear()
-        cov = np.array(best.cov, dtype=float)
-        cov = 0.5 * (cov + cov.T) + reinit_floor(self.config)
-        self.views.clear()
-        self.log_hypotheses(t, [best])
-        self.go(t, State.TRACKING, f"relocalized: score {best.score:.2f}, "
-                                   f"{best.n_lines_explained} lines explained"
-                                   + (f" ({how})" if how else ""))
-        return Decision(np.asarray(best.pose, float), cov)
-
-    def _follow_ties(self, t: float, odom: NDArray, points: NDArray, kinds: tuple[str, ...],
-                     hough: HoughConfig) -> Decision:
-        """Every tied pose takes this scan (:meth:`Ties.follow`); tracking starts again from
-        the one that breaks the tie."""
-        broken = self.ties.follow(odom, points, kinds, hough, self.map, self.fit,
-                                  self.belief.last_trusted)
-        if broken is None:
-            return Decision()
-        self.views.clear()
-        if broken.by_distance:
-            self.counts["ties_broken_by_distance"] += 1
-        self.go(t, State.TRACKING, broken.reason)
-        self.belief.trusted_by_prior_only = broken.by_distance
-        return Decision(broken.pose, reinit_floor(self.config))
-
     def landmark_step(self, t: float, odom: NDArray, position: tuple[float, float],
                       bearing: float, label: str, tolerance: float) -> Decision:
-        """A landmark seen at ``bearing`` (``tolerance``: its 3σ) weighs the followed poses, or
-        drops the tied poses that would see it elsewhere; the pose when one is left or taken."""
-        if self.bank is not None:
-            verdict = self.bank.weigh_bearing(t, np.asarray(odom, float), position, bearing,
-                                              tolerance / 3.0, self._least_right_fit())
-            return self._take(t, verdict, f" after {label} at {math.degrees(bearing):.0f}°")
-        keep = self.ties.landmark(odom, position, bearing, tolerance)
-        if keep is None:
+        """A landmark seen at ``bearing`` (``tolerance``: its 3σ) weighs the followed poses;
+        the pose when one is taken."""
+        if self.bank is None:
             return Decision()
-        self.counts["landmark_prunes"] += 1
-        if not keep:  # none fits: the tie was not between the right poses; start over
-            self.go(t, State.COLLECTING, f"{label} fits no hypothesis: collecting again")
-            return Decision()
-        if len(keep) > 1:
-            return Decision()
-        self.views.clear()
-        self.go(t, State.TRACKING, f"tie broken by {label} at {math.degrees(bearing):.0f}°")
-        self.ties.clear()
-        cov = np.diag([0.1**2, 0.1**2, math.radians(3.0) ** 2])
-        return Decision(keep[0], cov)
+        verdict = self.bank.weigh_bearing(t, np.asarray(odom, float), position, bearing,
+                                          tolerance / 3.0, self._least_right_fit())
+        return self._take(t, verdict, f" after {label} at {math.degrees(bearing):.0f}°")
 
     def log_hypotheses(self, t: float, hyps: list[Hypothesis]) -> None:
         if self.logger is not None:

@@ -32,7 +32,6 @@ class Belief:
 
     prior: tuple[NDArray, NDArray, NDArray] | None = None  # pose, cov, odometry: the last scan
     last_trusted: tuple[NDArray, NDArray] | None = None  # pose, odometry at the last used fix
-    trusted_by_prior_only: bool = False  # tracking since a tie broken by last_trusted alone
 
     def displacement_prior(self, pose: NDArray, odom: NDArray, config: AmbiguityConfig
                            ) -> float:

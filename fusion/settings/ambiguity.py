@@ -44,25 +44,11 @@ class AmbiguityConfig(BaseModel):
         500_000, ge=1, description="work of a global match done per scan, in distance look-ups "
         "(5–10 ms): a match spreads over as many scans as it needs, so that no scan waits for "
         "a whole one (while its poses are followed; otherwise it runs whole)")
-    min_score: float = Field(0.85, ge=0.0, le=1.0, description="global hypothesis acceptance")
-    decisive_margin: float = Field(
-        0.05, ge=0.0, description="the winner must beat any other pose by this much; closer "
-        "rivals are a tie and more views are collected")
     reinit_sigma_xy: float = Field(0.05, gt=0.0, description="m, floor on the new covariance")
     reinit_sigma_theta_deg: float = Field(1.0, gt=0.0, description="°, floor on the new "
                                           "covariance")
     failures_until_lost: int = Field(3, ge=1, description="global matches without a decisive "
                                      "pose before the state says lost (and retries back off)")
-    tie_window: int = Field(
-        10, ge=2, description="scans over which tied poses are compared by how well they fit")
-    tie_lead: float = Field(
-        0.1, gt=0.0, description="lead in the fraction of points on walls that breaks a tie")
-    tie_steady_lead: float | None = Field(
-        0.01, gt=0.0, description="a smaller lead breaks it too when held on every scan of "
-        "the window (None: never) ...")
-    tie_min_fit: float = Field(
-        0.9, ge=0.0, le=1.0, description="... by a pose whose fraction on walls is at least "
-        "this much of tracking's")
     retry_every: int = Field(3, ge=1, description="scans between global attempts")
     # A fix that puts the scan where the map has no walls is not used, however well it passes
     # the filter's gate: a single matched line (rank 2) after a kidnap can steer the heading
@@ -89,17 +75,14 @@ class AmbiguityConfig(BaseModel):
         0.9, gt=0.0, le=1.0, description="a scan without a fix whose guess has at least this "
         "times the recent accepted scans' fraction on walls does not count as a failure")
     # After a kidnap the pose is more plausibly near where the robot was last known to be than
-    # across the building: a displacement prior N(0, σ²) about the last trusted pose (carried by
-    # odometry) breaks ties that the views cannot. Without such a pose (global start) nothing
-    # changes.
+    # across the building: a displacement prior N(0, σ²) about the last belief (carried by
+    # odometry) weighs the followed poses where the views cannot tell them apart. Without such a
+    # pose (global start) nothing changes.
     kidnap_prior_sigma: float | None = Field(
         2.0, gt=0.0, description="m; scale of a plausible kidnap (None: never use the prior)")
     kidnap_probability: float = Field(
         0.01, gt=0.0, le=1.0, description="how plausible a pose far beyond the kidnap scale is "
         "next to one where the odometry says the robot is (the displacement prior's floor)")
-    kidnap_prior_odds: float = Field(
-        10.0, gt=1.0, description="the nearest tied pose is taken when the prior makes it this "
-        "many times as likely as every rival: exp((d₂² − d₁²) / 2σ²)")
     # When tracking fails and the prediction no longer fits the scan (guess fit below
     # hold_fit_ratio of the recent ones), the scan's own lines are matched to the map's within a
     # neighbourhood of the dead-reckoned pose before the filter is given up: a wheel slip or a
@@ -133,7 +116,6 @@ class AmbiguityConfig(BaseModel):
         2.0, gt=0.0, description="... plus this times the distance the odometry moved since the "
         "last accepted fix (None: anywhere within local_search_xy)")
     global_match: GlobalMatchConfig = GlobalMatchConfig()
-    hypotheses: HypothesisConfig | None = Field(
-        HypothesisConfig(), description="follow a global match's poses each with its own "
-        "filter and take the one the scans keep fitting (None: the score, tie and prior rules "
-        "above)")
+    hypotheses: HypothesisConfig = Field(
+        HypothesisConfig(), description="how a global match's poses are followed, each with "
+        "its own filter, until the scans keep fitting one")
