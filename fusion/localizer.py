@@ -24,7 +24,7 @@ from fusion.decision import FixDecider, FixDecision, TrackingScan
 from fusion.ekf import UpdateOutcome
 from fusion.estimate import Estimate, LocalizerStats
 from fusion.events import MAX_POSE_COORDINATE
-from fusion.io.timing import MAX_TIME_STEP
+from fusion.io.timing import MAX_TIME_STEP, HeldOdometry, OdometryReading
 from fusion.motion import OdometryCalibration
 from fusion.points_fix import PointsMeasurement
 from fusion.scan_odometry import ScanOdometry
@@ -87,7 +87,7 @@ class Localizer:
         for kinds in {s.hough.reference_kinds for s in self.config.sensors.values()}:
             self.manager.prepare(kinds)
         self.logger.log_map(map)
-        self._held_odometry: tuple[float, float, float, float, float] | None = None
+        self._held_odometry = HeldOdometry()
         self._start_reason = "initial pose given"
         if initial_pose is None:
             self.manager.start_lost(0.0, "no initial pose: global localization")
@@ -131,9 +131,7 @@ class Localizer:
                                **self.stats.summary(self.tracker.counts),
                                "localized": self.localized, "ambiguity": self.manager.summary()}
         if self.wheel_scale is not None:
-            doc["wheel_scale"] = {"estimate": round(self.wheel_scale.value, 6),
-                                  "sigma": round(self.wheel_scale.sigma, 6),
-                                  "updates": self.wheel_scale.updates}
+            doc["wheel_scale"] = self.wheel_scale.summary()
         if self.scan_odometry is not None:
             doc["scan_odometry"] = {"matched": self.scan_odometry.matched,
                                     "unmatched": self.scan_odometry.unmatched}
@@ -155,11 +153,11 @@ class Localizer:
         odometry, in the frame the scan matches corrected. ``unmeasured``: seconds before t whose
         motion the increment misses (:class:`fusion.events.Odometry`).
 
-        Time (:mod:`fusion.io.timing`): a reading more than ``MAX_TIME_STEP`` after the previous
-        one is held until the next confirms it (at or after it) or shows it a stray stamp
-        (before it: dropped and counted in ``stats.stray_timestamps``). A reading that cannot be
-        a pose (non-finite, or beyond ``MAX_POSE_COORDINATE``) is dropped and counted; the
-        chain continues from the last good reading."""
+        Time (:class:`fusion.io.timing.HeldOdometry`): a reading more than ``MAX_TIME_STEP``
+        after the previous one is held until the next confirms it (at or after it) or shows it
+        a stray stamp (before it: dropped and counted in ``stats.stray_timestamps``). A reading
+        that cannot be a pose (non-finite, or beyond ``MAX_POSE_COORDINATE``) is dropped and
+        counted; the chain continues from the last good reading."""
         if not (all(map(math.isfinite, (t, x, y, theta)))
                 and max(abs(x), abs(y), abs(theta)) <= MAX_POSE_COORDINATE):
             self.stats.invalid_odometry += 1
@@ -167,21 +165,17 @@ class Localizer:
                 log.warning("odometry at t = %s cannot be a pose (%s, %s, %s): dropped, the chain "
                             "goes on from the last good reading", t, x, y, theta)
             return
-        reading = (t, x, y, theta, unmeasured if math.isfinite(unmeasured) else 0.0)
-        held, self._held_odometry = self._held_odometry, None
-        if held is not None:
-            if t >= held[0]:
-                self._use_odometry(*held)
-            else:
-                self.stats.stray_timestamps += 1
-                if self.stats.stray_timestamps <= LOGGED_WARNINGS:
-                    log.warning("odometry at t = %s jumped ahead of the readings before and "
-                                "after it (t = %s): dropped", held[0], t)
-        clock = self.tracker.odometry_time
-        if clock is not None and t - clock > MAX_TIME_STEP:
-            self._held_odometry = reading
-            return
-        self._use_odometry(*reading)
+        reading = OdometryReading(t, x, y, theta, unmeasured if math.isfinite(unmeasured) else 0.0)
+        confirmed, stray = self._held_odometry.next_reading(t)
+        if confirmed is not None:
+            self._use_odometry(*confirmed)
+        if stray is not None:
+            self.stats.stray_timestamps += 1
+            if self.stats.stray_timestamps <= LOGGED_WARNINGS:
+                log.warning("odometry at t = %s jumped ahead of the readings before and "
+                            "after it (t = %s): dropped", stray.t, t)
+        if not self._held_odometry.hold(reading, self.tracker.odometry_time):
+            self._use_odometry(*reading)
 
     def _use_odometry(self, t: float, x: float, y: float, theta: float,
                       unmeasured: float = 0.0) -> None:
@@ -255,10 +249,9 @@ class Localizer:
         if self.stats.scans == 0:  # the recording starts with the state and why
             self.logger.log_state(t, self.manager.state.value, self._start_reason)
         self.stats.scans += 1
-        held = self._held_odometry
-        if held is not None and t >= held[0] - MAX_TIME_STEP:  # the scan's clock confirms it
-            self._held_odometry = None
-            self._use_odometry(*held)
+        confirmed = self._held_odometry.scan_at(t)
+        if confirmed is not None:
+            self._use_odometry(*confirmed)
         clock = self.tracker.odometry_time
         if not math.isfinite(t) or (clock is not None and t - clock > MAX_TIME_STEP):
             # a scan far ahead of the odometry is a stray stamp (or the odometry stopped): its

@@ -62,6 +62,8 @@ stretch where the map is distorted) is never used alone; with a second, the medi
 them (the prior tips it) and only the chords that agree with it are averaged"""
 _AGREE = float(chi2.ppf(0.99, 1))
 """two chords agree when their ratios differ by less than this quantile of χ²₁ of their noise"""
+_MEDIAN_EFFICIENCY = 1.2533
+"""√(π/2): the standard error of a normal sample's median over that of its mean"""
 _HEADINGS = 1024
 """full fixes between two ends of a chord at most (a robot that stands still starts afresh)"""
 _READINGS = 4096
@@ -112,7 +114,7 @@ class WheelScaleLearner:
         """The estimate's nominal standard error, 1/√(Σ weights) of the chords kept and the
         prior, widened by 1.25 for the median that chose which of them are averaged."""
         total = self._prior[1] + sum(weight for _, weight in self._chords)
-        return 1.2533 / math.sqrt(total)
+        return _MEDIAN_EFFICIENCY / math.sqrt(total)
 
     def on_wheels(self, t: float, x: float, y: float, theta: float, broken: bool) -> None:
         """A raw wheel reading (before any calibration); ``broken``: the wheels missed motion
@@ -132,6 +134,11 @@ class WheelScaleLearner:
     def on_fix(self, t: float, pose: NDArray[np.float64], cov: NDArray[np.float64]) -> None:
         """A full fix the filter accepted, taken at ``t``."""
         self._pending.append(_Fix(t, np.array(pose, dtype=float), np.array(cov, dtype=float)))
+
+    def summary(self) -> dict[str, float | int]:
+        """The estimate, its σ and the chords used (``metrics.json``'s ``wheel_scale``)."""
+        return {"estimate": round(self.value, 6), "sigma": round(self.sigma, 6),
+                "updates": self.updates}
 
     def forget(self) -> None:
         """Start afresh: the pose jumped (a relocalization) or the wheels missed motion."""

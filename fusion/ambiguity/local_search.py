@@ -155,7 +155,20 @@ def _heading_reach(least: float, guess_cov: NDArray | None, probability: float) 
     return min(max(least, math.sqrt(gate_threshold(probability, 1)) * sigma), math.pi)
 
 
-def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = 0.3
+SIGMA_ALONG = 0.3
+"""m: the σ of a candidate's position along a corridor where it keeps the guess's (the fix did
+not observe it)"""
+SWEEP_STEP_XY = 0.25
+"""m: the sweep's starts move the guess along its heading in steps of this"""
+SWEEP_STEP_DEG = 2.0
+"""°: and turn it in steps of this"""
+SAME_POSE_XY = 0.3
+"""m: candidates closer than this (and than SAME_POSE_DEG) are one pose, not rivals: the
+integrity's right-pose bounds (:data:`fusion.integrity.LOCALIZED_POSITION`)"""
+SAME_POSE_DEG = 5.0
+
+
+def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = SIGMA_ALONG
               ) -> tuple[NDArray, NDArray, bool] | None:
     """A local re-search candidate from a fix tracked from it: a full fix as it is; one that
     observes the heading and the position across the walls in view only (a corridor, or one
@@ -174,7 +187,8 @@ def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = 0.3
 
 
 def _sweep(guess: NDArray, radius_xy: float, radius_theta: float,
-           step_xy: float = 0.25, step_theta: float = math.radians(2.0)) -> NDArray[np.float64]:
+           step_xy: float = SWEEP_STEP_XY, step_theta: float = math.radians(SWEEP_STEP_DEG)
+           ) -> NDArray[np.float64]:
     """The guess turned by every ``step_theta`` within ``radius_theta``, and moved along its
     heading by every ``step_xy`` within ``radius_xy`` (forwards and backwards)."""
     turns = np.arange(step_theta, radius_theta + 1e-9, step_theta)
@@ -188,7 +202,7 @@ def _sweep(guess: NDArray, radius_xy: float, radius_theta: float,
     return np.concatenate((turned, moved))
 
 
-def _same_pose(a: NDArray, b: NDArray, xy: float = 0.3,
-               theta: float = math.radians(5.0)) -> bool:
+def _same_pose(a: NDArray, b: NDArray, xy: float = SAME_POSE_XY,
+               theta: float = math.radians(SAME_POSE_DEG)) -> bool:
     return bool(math.hypot(a[0] - b[0], a[1] - b[1]) <= xy
                 and abs(wrap_scalar(a[2] - b[2])) <= theta)

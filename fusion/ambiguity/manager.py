@@ -52,6 +52,9 @@ from houghloc.matching import gate_threshold
 
 __all__ = ["AmbiguityManager", "Decision", "Transition"]
 
+LANDMARK_BEARING_TOLERANCE_DEG = 15.0
+"""°: 3σ of a recognised landmark's bearing, where the caller gives none"""
+
 
 @dataclass(frozen=True, slots=True)
 class Transition:
@@ -217,11 +220,11 @@ class AmbiguityManager:
         return self.relocalization.step(t, np.asarray(odom, float), points, kinds, hough)
 
     def landmark_step(self, t: float, odom: NDArray, position: tuple[float, float],
-                      bearing: float, label: str, tolerance: float = math.radians(15.0)
+                      bearing: float, label: str,
+                      tolerance: float = math.radians(LANDMARK_BEARING_TOLERANCE_DEG)
                       ) -> Decision:
         """A recognised landmark seen at ``bearing``: followed hypotheses are weighed by it
-        (``tolerance`` is its 3σ); tied hypotheses that would see it elsewhere are dropped.
-        When one is left, or one's weight is enough, it is the pose."""
+        (``tolerance`` is its 3σ); when one's weight is enough, it is the pose."""
         return self.relocalization.landmark_step(t, odom, position, bearing, label, tolerance)
 
     @property

@@ -54,7 +54,7 @@ def closest_parallel_spacing(m: SegmentMap, angle_tol: float = math.radians(2.0)
         i, j = i[close], j[close]
         same_sense = np.abs(a[i] - a[j]) < np.pi / 2
         gap = np.abs(np.where(same_sense, r[i] - r[j], r[i] + r[j]))
-        gap = gap[gap > 0.05]
+        gap = gap[gap > SAME_WALL_GAP]
         if gap.size:
             best = min(best, float(gap.min()))
     return best

@@ -9,12 +9,17 @@
   the next record: if that one is at or after it, the gap was real and both are used; if it is
   back before it, the held record was a stray stamp (a clock glitch, a corrupted digit) and is
   dropped with a warning naming its line. A dropped record never moves the clock.
+
+Readers apply it to a log (:class:`StrayStampFilter`); the Localizer to its odometry stream, one
+reading at a time (:class:`HeldOdometry`), and drops a scan stamped that far ahead of its
+odometry.
 """
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Iterator
+from typing import NamedTuple
 
 from fusion.events import Event, Odometry, PointSet, ReadStats, Scan
 
@@ -94,3 +99,47 @@ def from_first_scan(events: Iterable[Event], limit: int | None = None) -> Iterat
                 return
             scans += 1
         yield e
+
+
+class OdometryReading(NamedTuple):
+    """An odometry reading as the Localizer takes it (``unmeasured``: seconds of motion before
+    ``t`` that the increment misses)."""
+
+    t: float
+    x: float
+    y: float
+    theta: float
+    unmeasured: float = 0.0
+
+
+class HeldOdometry:
+    """The policy above for a stream of odometry readings: a reading more than
+    :data:`MAX_TIME_STEP` after the odometry's clock is held; the next reading at or after it,
+    or a scan stamped no more than MAX_TIME_STEP before it, confirms it; a reading before it
+    shows it a stray stamp."""
+
+    def __init__(self) -> None:
+        self.reading: OdometryReading | None = None
+
+    def hold(self, reading: OdometryReading, clock: float | None) -> bool:
+        """Hold ``reading`` back when it is more than MAX_TIME_STEP after ``clock``."""
+        if clock is not None and reading.t - clock > MAX_TIME_STEP:
+            self.reading = reading
+            return True
+        return False
+
+    def next_reading(self, t: float) -> tuple[OdometryReading | None, OdometryReading | None]:
+        """A reading at ``t`` came: the held one as (confirmed, None) or (None, a stray stamp);
+        (None, None) when none was held."""
+        held, self.reading = self.reading, None
+        if held is None:
+            return None, None
+        return (held, None) if t >= held.t else (None, held)
+
+    def scan_at(self, t: float) -> OdometryReading | None:
+        """A scan at ``t`` came: the held reading when the scan confirms it."""
+        held = self.reading
+        if held is None or not t >= held.t - MAX_TIME_STEP:
+            return None
+        self.reading = None
+        return held
