@@ -55,8 +55,9 @@ from fusion.settings.hypotheses import RECENT_FITS, HypothesisConfig
 from fusion.tracker import PoseTracker
 from houghloc import HoughConfig, localize_scan
 from houghloc.geometry import relative, wrap_scalar
-from houghloc.localize import clean_points, observe_lines
+from houghloc.localize import observe_lines
 from houghloc.matching import gate_threshold
+from houghloc.scan_points import clean_points
 from houghloc.segment_map import SegmentMap
 
 MakeTracker = Callable[[NDArray[np.float64], NDArray[np.float64], float], PoseTracker]

@@ -36,7 +36,7 @@ from fusion.visualize import Logger, NullLogger
 from fusion.wheel_scale import WheelScaleLearner
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points, within_range
-from houghloc.localize import clean_points
+from houghloc.scan_points import clean_points
 from houghloc.warm_up import warm_up
 
 log = logging.getLogger(__name__)

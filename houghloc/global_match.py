@@ -58,7 +58,6 @@ from houghloc.hypothesis_scores import (
     point_scores,
     refine_hypothesis,
 )
-from houghloc.localize import scan_reach
 from houghloc.map_lookup import (
     AngleIndex,
     angle_index,
@@ -84,6 +83,7 @@ from houghloc.pose_hypotheses import (
     vote_cells,
 )
 from houghloc.refine import Lines
+from houghloc.scan_points import scan_reach
 from houghloc.segment_map import SegmentMap
 from houghloc.slide import slide_stages
 

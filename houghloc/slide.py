@@ -17,7 +17,6 @@ from houghloc.hypothesis_scores import (
     matched_at,
     scored_hypothesis,
 )
-from houghloc.localize import scan_reach
 from houghloc.map_lookup import (
     WallDistance,
     inside_map,
@@ -38,6 +37,7 @@ from houghloc.match_result import (
 from houghloc.neighbourhood import Neighbourhood
 from houghloc.pose_hypotheses import row_chunks, top_indices
 from houghloc.refine import Lines
+from houghloc.scan_points import scan_reach
 from houghloc.segment_map import SegmentMap
 
 
