@@ -26,6 +26,7 @@ from houghloc.map_lookup import wall_distance
 
 TRACKED_FITS = 200  # accepted scans whose fits tell what a right pose fits
 MIN_HISTORY = 5  # fits needed before a median says what is usual
+MIN_QUANTILE_HISTORY = 20  # accepted scans' fits needed before a low quantile of them says it
 
 
 @dataclass
@@ -180,9 +181,10 @@ class ScanFit:
         return statistics.median(self.fixes) if self.fixes else None
 
     def least_right(self, quantile: float) -> float | None:
-        """The fit that all but ``quantile`` of the accepted scans reached (None before 20 of
-        them): a pose taken must fit at least as well as tracking usually did."""
-        if len(self.tracked) < 20:
+        """The fit that all but ``quantile`` of the accepted scans reached (None before
+        ``MIN_QUANTILE_HISTORY`` of them): a pose taken must fit at least as well as tracking
+        usually did."""
+        if len(self.tracked) < MIN_QUANTILE_HISTORY:
             return None
         return float(np.quantile(np.fromiter(self.tracked, float), quantile))
 

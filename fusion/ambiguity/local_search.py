@@ -28,6 +28,26 @@ from houghloc.geometry import wrap_angle, wrap_scalar
 from houghloc.matching import gate_threshold
 from houghloc.neighbourhood import Neighbourhood
 
+MATCHED_STARTS = 3
+"""the local match's best poses that tracking is run from"""
+SWEPT_STARTS = 6
+"""the swept poses (below) that put most of the scan on walls, run from as well"""
+START_SIGMA_XY = 0.1
+"""m: the covariance each start is tracked from, in position ..."""
+START_SIGMA_DEG = 2.0
+"""°: ... and in heading"""
+SIGMA_ALONG = 0.3
+"""m: the σ of a candidate's position along a corridor where it keeps the guess's (the fix did
+not observe it)"""
+SWEEP_STEP_XY = 0.25
+"""m: the sweep's starts move the guess along its heading in steps of this"""
+SWEEP_STEP_DEG = 2.0
+"""°: and turn it in steps of this"""
+SAME_POSE_XY = 0.3
+"""m: candidates closer than this (and than SAME_POSE_DEG) are one pose, not rivals: the
+integrity's right-pose bounds (:data:`fusion.integrity.LOCALIZED_POSITION`)"""
+SAME_POSE_DEG = 5.0
+
 
 @dataclass(frozen=True, slots=True)
 class Found:
@@ -71,8 +91,8 @@ class LocalSearch:
         turn = _heading_reach(math.radians(self.config.local_search_theta_deg), guess_cov,
                               hough.gate_probability)
         near = Neighbourhood(np.asarray(guess, float), radius, turn)
-        # only the best three are polished below: refining more would be wasted
-        local = self.config.global_match.model_copy(update={"max_refined": 3})
+        # only the best are polished below: refining more would be wasted
+        local = self.config.global_match.model_copy(update={"max_refined": MATCHED_STARTS})
         result = global_match(lines, points, self.map, local, kinds, near)
         self.counts["local_searches"] += 1
         typical = self.fit.typical_fix()
@@ -83,9 +103,10 @@ class LocalSearch:
         # an unreported reversal), each corrected by tracking from there.
         sweep = _sweep(np.asarray(guess, float), radius, turn)
         raw = self.fit.fractions(sweep, points, kinds)  # polish the promising ones only
-        starts = [np.asarray(h.pose, float) for h in result.hypotheses[:3]]
-        starts += list(sweep[np.argsort(-raw, kind="stable")[:6]])
-        prior = np.diag([0.1**2, 0.1**2, math.radians(2.0) ** 2])
+        starts = [np.asarray(h.pose, float) for h in result.hypotheses[:MATCHED_STARTS]]
+        starts += list(sweep[np.argsort(-raw, kind="stable")[:SWEPT_STARTS]])
+        prior = np.diag([START_SIGMA_XY**2, START_SIGMA_XY**2,
+                         math.radians(START_SIGMA_DEG) ** 2])
         observed = (fix.grid, fix.accumulator, lines)  # one scan, matched from every start
         found = []
         for start in starts:
@@ -153,19 +174,6 @@ def _heading_reach(least: float, guess_cov: NDArray | None, probability: float) 
         return least
     sigma = math.sqrt(max(float(guess_cov[2, 2]), 0.0))
     return min(max(least, math.sqrt(gate_threshold(probability, 1)) * sigma), math.pi)
-
-
-SIGMA_ALONG = 0.3
-"""m: the σ of a candidate's position along a corridor where it keeps the guess's (the fix did
-not observe it)"""
-SWEEP_STEP_XY = 0.25
-"""m: the sweep's starts move the guess along its heading in steps of this"""
-SWEEP_STEP_DEG = 2.0
-"""°: and turn it in steps of this"""
-SAME_POSE_XY = 0.3
-"""m: candidates closer than this (and than SAME_POSE_DEG) are one pose, not rivals: the
-integrity's right-pose bounds (:data:`fusion.integrity.LOCALIZED_POSITION`)"""
-SAME_POSE_DEG = 5.0
 
 
 def _polished(fix: ScanCorrection, guess: NDArray, sigma_along: float = SIGMA_ALONG

@@ -52,6 +52,8 @@ from houghloc.matching import gate_threshold
 
 __all__ = ["AmbiguityManager", "Decision", "Transition"]
 
+SUMMARY_TRANSITIONS = 50
+"""the latest transitions metrics.json lists (all are counted)"""
 LANDMARK_BEARING_TOLERANCE_DEG = 15.0
 """°: 3σ of a recognised landmark's bearing, where the caller gives none"""
 
@@ -282,4 +284,4 @@ class AmbiguityManager:
         return {"state": self.state.value, "transitions": len(self.transitions),
                 "counts": dict(self.counts),
                 "log": [{"t": round(tr.t, 3), "from": tr.old.value, "to": tr.new.value,
-                         "reason": tr.reason} for tr in self.transitions[-50:]]}
+                         "reason": tr.reason} for tr in self.transitions[-SUMMARY_TRANSITIONS:]]}
