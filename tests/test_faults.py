@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from fusion.cli import main
 from fusion.evaluation import ATE, Trajectory
@@ -378,3 +380,24 @@ def test_an_initial_pose_far_outside_the_map_is_refused(office, tmp_path, capsys
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "outside the map" in err and str(office["map"]) in err
+
+
+@given(st.lists(st.floats(-100.0, 100.0), max_size=30))
+def test_the_localizer_holds_odometry_stamps_as_the_readers_do(stamps: list[float]) -> None:
+    """One policy, two forms: the readings the Localizer's :class:`HeldOdometry` lets through
+    (its clock the newest used) are the records a reader's :class:`StrayStampFilter` keeps, in
+    the same order (a reading still held at the end is the reader's last)."""
+    from fusion.events import Odometry, ReadStats
+    from fusion.io.timing import HeldOdometry, OdometryReading, StrayStampFilter
+
+    held, used, clock = HeldOdometry(), [], None
+    for t in stamps:
+        confirmed, _ = held.next_reading(t)
+        for reading in ([] if confirmed is None else [confirmed]) + [OdometryReading(t, 0, 0, 0)]:
+            if reading is confirmed or not held.hold(reading, clock):
+                used.append(reading.t)
+                clock = reading.t if clock is None else max(clock, reading.t)
+    if held.reading is not None:
+        used.append(held.reading.t)
+    kept = StrayStampFilter([Odometry(t, 0.0, 0.0, 0.0) for t in stamps], ReadStats())
+    assert used == [event.t for event in kept]
