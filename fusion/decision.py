@@ -61,7 +61,7 @@ class TrackingScan:
 class Verdict:
     """The word on a tracking fix, before the filter sees it: ``use`` it, or not and why
     (``status``). ``guess_fit``/``fix_fit``: the fractions of the scan's points on walls at the
-    guess and at the fix (None when no check wanted them)."""
+    guess and at the fix (``fix_fit`` None for a fix of rank 0: it has no pose of its own)."""
 
     use: bool
     status: ScanStatus | None = None

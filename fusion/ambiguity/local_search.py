@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from fusion.ambiguity.fit import ScanFit
 from fusion.hypotheses import scan_log_likelihood
+from fusion.integrity import LOCALIZED_HEADING_DEG, LOCALIZED_POSITION
 from fusion.settings.ambiguity import AmbiguityConfig
 from houghloc import (
     GlobalResult,
@@ -43,10 +44,10 @@ SWEEP_STEP_XY = 0.25
 """m: the sweep's starts move the guess along its heading in steps of this"""
 SWEEP_STEP_DEG = 2.0
 """°: and turn it in steps of this"""
-SAME_POSE_XY = 0.3
-"""m: candidates closer than this (and than SAME_POSE_DEG) are one pose, not rivals: the
-integrity's right-pose bounds (:data:`fusion.integrity.LOCALIZED_POSITION`)"""
-SAME_POSE_DEG = 5.0
+SAME_POSE_XY = LOCALIZED_POSITION
+"""m: candidates closer than this (and than SAME_POSE_DEG) are one pose, not rivals: the bounds
+within which the integrity output calls a pose right"""
+SAME_POSE_DEG = LOCALIZED_HEADING_DEG
 
 
 @dataclass(frozen=True, slots=True)

@@ -164,13 +164,12 @@ class AmbiguityManager:
             # The search explains a motion the odometry did not report, and the neighbourhood
             # searched does not bound it: the robot was carried (``scans_broke``: this scan
             # fitted its predecessor nowhere near the wheels' increment, and the odometry's
-            # noise cannot explain the shift found either), the guess itself may be farther
-            # off than the neighbourhood reaches (its covariance says so), or the scan did not
-            # observe the position along the corridor in view (the pose found keeps the
-            # guess's). The robot may then be at a look-alike place beyond the neighbourhood
-            # (a door further on, the next painted line). The pose is followed as tracking's
-            # belief while a global match, of this view at once, proposes its rivals; it is
-            # taken when the scans single it out (mode_probability is 0 until then).
+            # noise cannot explain the shift found either), or the scan did not observe the
+            # position along the corridor in view (the pose found keeps the guess's). The same
+            # motion may have carried the robot to a look-alike place beyond the neighbourhood
+            # (a door further on). The pose is followed as tracking's belief while a global
+            # match, of this view at once, proposes its rivals; it is taken when the scans
+            # single it out (mode_probability is 0 until then).
             self.belief.prior = (found.pose.copy(), cov.copy(), np.asarray(odom, float).copy())
             self._go(t, State.COLLECTING, "local re-search: the odometry missed a motion; a "
                      "global match contests the pose found")

@@ -43,7 +43,7 @@ class AmbiguityConfig(BaseModel):
     match_lookups_per_scan: int = Field(
         500_000, ge=1, description="work of a global match done per scan, in distance look-ups "
         "(5–10 ms): a match spreads over as many scans as it needs, so that no scan waits for "
-        "a whole one (while its poses are followed; otherwise it runs whole)")
+        "a whole one")
     reinit_sigma_xy: float = Field(0.05, gt=0.0, description="m, floor on the new covariance")
     reinit_sigma_theta_deg: float = Field(1.0, gt=0.0, description="°, floor on the new "
                                           "covariance")
