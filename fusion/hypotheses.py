@@ -320,15 +320,35 @@ class HypothesisBank:
         f = min(max(fit, 0.0), 1.0)
         return self._z_accept * math.sqrt(f * (1.0 - f) / (c.independent_points * c.min_scans))
 
+    def leader_probability(self, least_fit: float | None) -> float:
+        """The probability that the leader is the right pose, as the verdict reads the bank:
+        its weight among the followed poses, once a global match has proposed rivals to it and
+        its own fits say it may be right at all (:meth:`_may_be_right`); 0 otherwise. A weight
+        is a share among the poses followed: when none of them fits as a right pose does (a
+        place the map lacks, where the rivals fit worse still), the leader's share of 1 says
+        nothing of the robot."""
+        if not self.hypotheses or not self._contested:
+            return 0.0
+        leader = self.leader
+        return float(leader.weight) if self._may_be_right(leader, least_fit) else 0.0
+
+    def _may_be_right(self, h: Hypothesis, least_fit: float | None) -> bool:
+        """Has ``h`` been weighed on ``min_scans`` scans, and do its recent fits reach what
+        tracking's accepted scans fit (``least_fit``, when known) within their sampling noise?
+        Otherwise it is the best of poses that all fit poorly: none is right."""
+        c = self.config
+        if h.updates < c.min_scans:
+            return False
+        recent = float(np.mean(list(h.fits)[-c.min_scans:]))
+        return least_fit is None or recent >= least_fit - self._fit_noise(least_fit)
+
     def _verdict(self, least_fit: float | None) -> BankVerdict:
         leader = self.leader
         c = self.config
         if (not self._contested or leader.weight < c.accept_probability
-                or leader.updates < c.min_scans):
+                or not self._may_be_right(leader, least_fit)):
             return BankVerdict()
         recent = float(np.mean(list(leader.fits)[-c.min_scans:]))
-        if least_fit is not None and recent < least_fit - self._fit_noise(least_fit):
-            return BankVerdict()  # the best of poses that all fit poorly: none is right
         return BankVerdict(leader.pose.copy(), leader.cov.copy(),
                            f"{leader.origin} hypothesis of weight {leader.weight:.3f} after "
                            f"{leader.updates} scans (recent fit {recent:.2f}), "

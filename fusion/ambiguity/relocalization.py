@@ -95,7 +95,7 @@ class Relocalization:
         match of them starts; a match under way advances by ``match_lookups_per_scan``."""
         if self.bank is not None and hough is not None:
             decision = self._take(t, self.bank.step(t, odom, points, hough,
-                                                    self._least_right_fit()))
+                                                    self.least_right_fit()))
             if decision.reset_pose is not None:
                 return decision
         added = self.views.add(odom, points)
@@ -164,7 +164,9 @@ class Relocalization:
         return HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
                               self.fit.fractions, self.fit.shares)
 
-    def _least_right_fit(self) -> float | None:
+    def least_right_fit(self) -> float | None:
+        """The least a right pose's scan fits (tracking's accepted scans' low quantile), if
+        known: a followed pose that fits less is not taken, nor reported likely."""
         return self.fit.least_right(self.config.hypotheses.fit_quantile)
 
     def _take(self, t: float, verdict: BankVerdict, why: str = "") -> Decision:
@@ -184,7 +186,7 @@ class Relocalization:
         if self.bank is None:
             return Decision()
         verdict = self.bank.weigh_bearing(t, np.asarray(odom, float), position, bearing,
-                                          tolerance / 3.0, self._least_right_fit())
+                                          tolerance / 3.0, self.least_right_fit())
         return self._take(t, verdict, f" after {label} at {math.degrees(bearing):.0f}°")
 
     def log_hypotheses(self, t: float, hyps: list[Hypothesis]) -> None:
