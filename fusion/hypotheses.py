@@ -330,6 +330,8 @@ class HypothesisBank:
         if not self.hypotheses or not self._contested:
             return 0.0
         leader = self.leader
+        if leader.updates < self.config.min_scans:  # too few fits to test: its weight says it
+            return float(leader.weight)
         return float(leader.weight) if self._may_be_right(leader, least_fit) else 0.0
 
     def _may_be_right(self, h: Hypothesis, least_fit: float | None) -> bool:
