@@ -322,17 +322,28 @@ class HypothesisBank:
 
     def leader_probability(self, least_fit: float | None) -> float:
         """The probability that the leader is the right pose, as the verdict reads the bank:
-        its weight among the followed poses, once a global match has proposed rivals to it and
-        its own fits say it may be right at all (:meth:`_may_be_right`); 0 otherwise. A weight
-        is a share among the poses followed: when none of them fits as a right pose does (a
-        place the map lacks, where the rivals fit worse still), the leader's share of 1 says
-        nothing of the robot."""
+        its weight among the followed poses, once a global match has proposed rivals to it
+        (0 before), times the probability that its fits pass the verdict's test
+        (:meth:`_may_be_right`): a weight is a share among the poses followed, and when none
+        of them fits as a right pose does (a place the map lacks, where the rivals fit worse
+        still), the leader's share of 1 says nothing of the robot.
+
+        The test's chance: the mean m of the leader's last ``min_scans`` fits has the sampling
+        noise σ of :meth:`_fit_noise` (its bound is z σ), and passes while m ≥ f − z σ, f the
+        least a right pose fits; the probability that its expectation does is Φ((m − f)/σ + z).
+        A leader with fewer fits is not tested: its weight stands."""
         if not self.hypotheses or not self._contested:
             return 0.0
         leader = self.leader
-        if leader.updates < self.config.min_scans:  # too few fits to test: its weight says it
+        c = self.config
+        if least_fit is None or leader.updates < c.min_scans:
             return float(leader.weight)
-        return float(leader.weight) if self._may_be_right(leader, least_fit) else 0.0
+        recent = float(np.mean(list(leader.fits)[-c.min_scans:]))
+        sigma = self._fit_noise(least_fit) / self._z_accept
+        if sigma <= 0.0:
+            return float(leader.weight) if recent >= least_fit else 0.0
+        return float(leader.weight) * NormalDist().cdf((recent - least_fit) / sigma
+                                                       + self._z_accept)
 
     def _may_be_right(self, h: Hypothesis, least_fit: float | None) -> bool:
         """Has ``h`` been weighed on ``min_scans`` scans, and do its recent fits reach what

@@ -207,6 +207,32 @@ def test_the_best_of_poses_that_all_fit_poorly_is_not_taken(office) -> None:
     assert np.allclose(verdicts[1].pose[:2], SPOTS[0][:2] + [2 * STEP, 0.0], atol=0.01)
 
 
+def test_the_leader_of_poses_that_all_fit_poorly_is_not_reported_likely(office) -> None:
+    """The integrity output reads the bank as its verdict does. Tracking's scans put at least
+    0.45 of their points on walls; two scans of 30 observations each have σ = 0.064 about
+    that. A leader that fits 0.3 holds nearly all the weight and is reported at a quarter of it,
+    Φ((0.3 − 0.45)/σ + 1.645) = 0.245 (in a room the map lacks, a drifting belief outweighs
+    rivals that fit worse still); one that fits 0.8 at its weight; one at the verdict's bound
+    (0.45 − 1.645 σ) at half of it; a leader weighed once is not tested yet, and before a
+    global match has proposed rivals the probability is 0."""
+    z_sigma = 1.645 * math.sqrt(0.45 * 0.55 / (30 * 2))
+    for fit, expected in ((0.3, 0.245), (0.8, 1.0), (0.45 - z_sigma, 0.5)):
+        b = bank(office, lambda poses, f=fit: [f, 0.05][: len(poses)])
+        assert b.leader_probability(0.45) == 0.0  # nothing followed
+        b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+        weigh(b, odom=(STEP, 0.0, 0.0), least_fit=0.45)
+        assert b.leader_probability(0.45) == pytest.approx(b.leader.weight)  # one fit: untested
+        weigh(b, odom=(2 * STEP, 0.0, 0.0), least_fit=0.45)
+        assert b.leader.weight > 0.99
+        got = b.leader_probability(0.45) / b.leader.weight
+        assert got == pytest.approx(expected, abs=2e-3), fit
+        assert b.leader_probability(None) == pytest.approx(b.leader.weight)
+    tracked = bank(office, lambda poses: [0.8][: len(poses)])
+    tracked.seed(0.0, np.zeros(3), SPOTS[:1], [COV], [1.0], origin="tracked")
+    weigh(tracked, least_fit=0.45)
+    assert tracked.leader.weight == 1.0 and tracked.leader_probability(0.45) == 0.0
+
+
 def test_no_scan_and_no_landmark_weighs_more_than_one_over_epsilon(office) -> None:
     """A right pose in a room the map lacks fits 0.15 where a wrong one fits 0.5 (Intel in the
     map of another run): unbounded, one scan would weigh 5·10⁴ against it (the 0.35 more of its
