@@ -32,8 +32,8 @@ class IcpResult:
     """how many points' worth of evidence the scene gives along ``weakest`` without the one
     movable object that gives most: Σ wᵢ (nᵢ·u)² over the paired points, in units of a point
     whose wall faces u squarely, less the largest sum of one object's points, an object being a
-    run of beams without a jump of ``max_neighbour_gap`` and at most :data:`MOVABLE_EXTENT`
-    across. A person walking beside the robot can carry a match along a corridor alone; a
+    run of beams without a jump of ``max_neighbour_gap`` whose surface facing u is at most
+    :data:`MOVABLE_EXTENT` across (:func:`_largest_movable`). A person walking beside the robot can carry a match along a corridor alone; a
     direction the rest of the scene does not observe may be that person's motion."""
     disagreement: tuple[float, int] = (0.0, 0)
     """(Q, dof): how far the scene's objects disagree on the motion along ``weakest``, a χ²
@@ -105,7 +105,7 @@ def point_to_line_icp(previous: NDArray[np.float64], current: NDArray[np.float64
     facing = paired_normals @ weakest
     evidence = weights * facing**2
     starts = _objects(current, config.max_neighbour_gap)
-    support = float(evidence.sum() - _largest_movable(current, evidence, starts))
+    support = float(evidence.sum() - _largest_movable(current, evidence, facing, starts))
     disagreement = _object_disagreement(evidence, weights * facing * residuals, starts,
                                         sigma2 * config.noise_scale)
     return IcpResult(x, sigma2 * np.linalg.inv(hessian), overlap, weakest, support,
@@ -127,15 +127,22 @@ def _objects(points: NDArray[np.float64], max_gap: float) -> NDArray[np.intp]:
 
 
 def _largest_movable(points: NDArray[np.float64], evidence: NDArray[np.float64],
-                     starts: NDArray[np.intp]) -> float:
+                     facing: NDArray[np.float64], starts: NDArray[np.intp]) -> float:
     """The most evidence one movable object gives: of the objects (``starts``, see
-    :func:`_objects`), those whose bounding box's diagonal is at most MOVABLE_EXTENT count."""
+    :func:`_objects`), those whose surface facing the weakest direction u spans at most
+    MOVABLE_EXTENT count. That surface is the object's points whose normals lie within 45° of
+    ±u (``facing`` = n·u, facing² ≥ ½), the points that carry its evidence along u: a person
+    standing by a wall is one run of beams with the wall, and only the person faces along the
+    corridor."""
     if len(starts) == 0:
         return 0.0
     points = np.asarray(points, dtype=float)
-    low = np.minimum.reduceat(points, starts, axis=0)
-    high = np.maximum.reduceat(points, starts, axis=0)
-    movable = np.hypot(*(high - low).T) <= MOVABLE_EXTENT
+    faces = (np.asarray(facing, dtype=float) ** 2 >= 0.5)[:, None]
+    low = np.minimum.reduceat(np.where(faces, points, np.inf), starts, axis=0)
+    high = np.maximum.reduceat(np.where(faces, points, -np.inf), starts, axis=0)
+    with np.errstate(invalid="ignore"):  # an object with no facing point spans nothing
+        span = np.nan_to_num(np.hypot(*(high - low).T), nan=0.0, posinf=0.0)
+    movable = span <= MOVABLE_EXTENT
     per_object = np.add.reduceat(evidence, starts)
     return float(per_object[movable].max()) if movable.any() else 0.0
 

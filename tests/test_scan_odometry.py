@@ -401,6 +401,30 @@ def test_a_person_walking_along_a_featureless_corridor_does_not_carry_the_match(
     assert correction.pose[0] == pytest.approx(0.05, abs=0.005)
 
 
+def test_a_person_walking_along_the_wall_does_not_carry_the_match() -> None:
+    """As above, but the person (0.6 m across) walks against the corridor's wall, 0.9 m
+    ahead: the scan passes from the wall onto the person without a jump, so the two are one
+    run of beams metres long, too long to be carried. Only the person faces along the
+    corridor (all the evidence there), and that surface is a person's width across: movable.
+    The wheels' increment is kept along the corridor."""
+    start = np.array([0.0, 0.0, 0.0])
+    motion = np.array([0.05, 0.0, 0.0])
+    ahead, radius = (0.9, 0.7), 0.3  # touching the wall at y = 1
+    before = scan_points(np.vstack((CORRIDOR, _person(ahead, radius))), start)
+    moved = np.vstack((CORRIDOR, _person((ahead[0] - 0.08, ahead[1]), radius)))
+    after = scan_points(moved, compose(start, motion))
+    icp = point_to_line_icp(before, after, motion, CONFIG)
+    assert icp is not None and icp.delta[0] > 0.1  # the match alone follows the person
+    assert icp.support < CONFIG.min_points
+    scan_odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    scan_odometry.on_wheels(0.0, 0.0, 0.0)
+    scan_odometry.match(0.0, before)
+    scan_odometry.on_wheels(*motion)
+    correction = scan_odometry.match(0.1, after)
+    assert correction is not None
+    assert correction.pose[0] == pytest.approx(0.05, abs=0.005)
+
+
 def test_an_end_wall_is_no_movable_object_and_still_corrects_the_wheels() -> None:
     """The same corridor closed by a wall 2 m ahead: the wheels read 15 cm too far, the wall
     (2 m across: nobody carries it) says so, and the match wins along the corridor."""
