@@ -14,26 +14,29 @@ fix, is of one of three kinds c: on a wall that the robot there sees directly (w
 distance: a likelihood field with a box kernel, cheap), seen *through* a wall, or neither (a
 person, a cupboard, a room the map lacks); ``s_hc`` are their shares of the scan. ``p_c`` is how
 often a point is of kind c at the right pose, measured at the reference poses of real logs
-(``hit_probability``, ``through_probability``): a pose that puts points on walls is likelier,
-one from which the robot would have seen through walls much less likely, and clutter, which a
-right pose meets too, weighs between them. Tracking's belief, carried by odometry, may be in a
-room the map lacks, where most points land on nothing: its likelihood allows for that
-(``mapped_probability``), so scans that land on nothing are no evidence against it, as they do
-not give tracking up; a pose a global match proposed claims that the map shows it. ``n`` is the
-number of independent observations a scan is worth (its points on one wall err together, so a
-scan of 360 points is worth far fewer), and ε the probability that a scan taken at the right
-pose fits the map no better than at a wrong one (furniture moved, a room the map lacks): without
-it one scan could weigh 5·10⁴ against a right pose that puts 0.15 of it on walls where a wrong
-one puts 0.5 (Intel in a map of another run), and no scan should weigh more than 1/ε. Weights
-are updated only once the robot has moved about a doorway's width since the last update (as
-AMCL does, farther): scans from nearly one place repeat one observation. A pose a later match
-proposes again is the pose followed, not new evidence for it. Hypotheses that meet are merged
-(their weights add), those whose weight falls below a probability are dropped,
-and one whose weight reaches the acceptance probability is the pose, provided its scans fit
-about as well as tracking's did: when no proposed pose is right, the best of them still gets
-most of the weight. Tracking's belief when it was given up is followed too, from the start: a
-right belief is taken back, a wrong one falls behind; but no pose is taken before a global match
-has proposed rivals to it.
+(``hit_probability``, ``through_probability``): a pose that puts points on walls is likelier, one
+from which the robot would have seen through walls much less likely, and clutter, which a right
+pose meets too, weighs between them. A wall the scan is seen through onto the walls beyond it may
+be glass (or a door the map shows closed): that is one fact about the building, not new evidence
+with every scan, so a hypothesis may take it for glass once, at the odds of the prior
+``glass_probability``, when its points there outweigh that, and sees through it from then on
+(points seen through onto nothing stay evidence against it). Tracking's belief, carried by
+odometry, may be in a room the map lacks, where most points land on nothing: its likelihood allows
+for that (``mapped_probability``), so scans that land on nothing are no evidence against it, as
+they do not give tracking up; a pose a global match proposed claims that the map shows it. ``n`` is
+the number of independent observations a scan is worth (its points on one wall err together, so a
+scan of 360 points is worth far fewer), and ε the probability that a scan taken at the right pose
+fits the map no better than at a wrong one (furniture moved, a room the map lacks): without it one
+scan could weigh 5·10⁴ against a right pose that puts 0.15 of it on walls where a wrong one puts
+0.5 (Intel in a map of another run), and no scan should weigh more than 1/ε. Weights are updated
+only once the robot has moved about a doorway's width since the last update (as AMCL does,
+farther): scans from nearly one place repeat one observation. A pose a later match proposes again
+is the pose followed, not new evidence for it. Hypotheses that meet are merged (their weights add),
+those whose weight falls below a probability are dropped, and one whose weight reaches the
+acceptance probability is the pose, provided its scans fit about as well as tracking's did: when no
+proposed pose is right, the best of them still gets most of the weight. Tracking's belief when it
+was given up is followed too, from the start: a right belief is taken back, a wrong one falls
+behind; but no pose is taken before a global match has proposed rivals to it.
 
 References: Arras, Castellanos, Tomatis, Siegwart, "Feature-based multi-hypothesis localization
 and tracking using geometric constraints", RAS 44 (2003); Jensfelt & Kristensen, "Active global
@@ -62,7 +65,13 @@ from houghloc.segment_map import SegmentMap
 
 MakeTracker = Callable[[NDArray[np.float64], NDArray[np.float64], float], PoseTracker]
 """``(pose, cov, t)``: a filter whose estimate at time t is the pose, given the odometry since"""
-
+GlassShares = Callable[[NDArray[np.float64], NDArray[np.float64], list[NDArray[np.bool_]], int],
+                       tuple[NDArray[np.float64], list[NDArray[np.intp]]]]
+"""``(poses, points, glass, glass_points)``: the P×3 shares of the points on a wall seen
+directly, through a wall and neither at each pose, the pose's ``glass`` walls (per map segment)
+seen through onto the walls beyond, and the walls newly taken for glass at each pose: those that
+``glass_points`` or more points on walls were seen through
+(:meth:`fusion.ambiguity.fit.ScanFit.shares_with_glass`)"""
 
 
 def scan_log_likelihood(shares: NDArray[np.float64], config: HypothesisConfig,
@@ -99,6 +108,9 @@ class Hypothesis:
     tracker: PoseTracker
     weight: float
     origin: str  # "tracked" (the belief when tracking was given up) or "global match"
+    glass: NDArray[np.bool_]
+    """per segment of the map: the walls this pose has taken for glass (its scans saw through
+    them onto the walls beyond), seen through from then on"""
     fits: deque[float] = field(default_factory=lambda: deque(maxlen=RECENT_FITS))
     updates: int = 0
 
@@ -126,14 +138,13 @@ class HypothesisBank:
     def __init__(self, map: SegmentMap, config: HypothesisConfig,
                  make_tracker: MakeTracker,
                  fit: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
-                 shares: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]]
-                 ) -> None:
+                 shares: GlassShares) -> None:
         """``make_tracker(pose, cov, t)``: a filter whose estimate at time t is the pose, with
         the odometry since; ``fit(poses, points)``: the fraction
         of the points (robot frame) on walls at each of the P×3 poses, what the verdict compares
-        with tracking's; ``shares(poses, points)``: P×3, the shares of the points on a wall seen
-        directly, through a wall and neither, what the weights follow
-        (:func:`scan_log_likelihood`)."""
+        with tracking's; ``shares``: the shares of the points on a wall seen directly, through
+        a wall and neither at each pose, with the walls it takes for glass
+        (:data:`GlassShares`), what the weights follow (:func:`scan_log_likelihood`)."""
         self.map = map
         self.config = config
         self._make_tracker = make_tracker
@@ -183,7 +194,8 @@ class HypothesisBank:
             if any(self._same_pose(pose, cov, h) for h in followed):
                 continue
             tracker = self._make_tracker(pose, cov, t)
-            self.hypotheses.append(Hypothesis(tracker, scale * max(score * prior, 1e-6), origin))
+            self.hypotheses.append(Hypothesis(tracker, scale * max(score * prior, 1e-6), origin,
+                                              np.zeros(len(self.map.starts), dtype=bool)))
         if self._last_update is None:
             self._last_update = np.asarray(odom, float).copy()
         self._merge()
@@ -225,10 +237,17 @@ class HypothesisBank:
         self._last_update = np.asarray(odom, float).copy()
         poses = np.array([h.pose for h in self.hypotheses])
         fits = self._fit(poses, points)
-        shares = self._shares(poses, points)
+        shares, taken = self._shares(poses, points, [h.glass for h in self.hypotheses],
+                                     self._glass_points(len(points)))
         beliefs = np.array([h.origin == "tracked" for h in self.hypotheses])
-        self._weigh(np.where(beliefs, scan_log_likelihood(shares, self.config, belief=True),
-                             scan_log_likelihood(shares, self.config)))
+        log_l = np.where(beliefs, scan_log_likelihood(shares, self.config, belief=True),
+                         scan_log_likelihood(shares, self.config))
+        # a wall taken for glass is one fact about the building, paid for once, in full, by
+        # the pose that takes it
+        glass_cost = math.log(self.config.glass_probability) * np.array([len(w) for w in taken])
+        for h, walls in zip(self.hypotheses, taken, strict=True):
+            h.glass[walls] = True
+        self._weigh(log_l, glass_cost)
         for h, f in zip(self.hypotheses, fits, strict=True):
             h.fits.append(float(f))
             h.updates += 1
@@ -256,18 +275,36 @@ class HypothesisBank:
         self._prune()
         return self._verdict(least_fit)
 
-    def _weigh(self, log_likelihoods: NDArray[np.float64]) -> None:
-        """Bayes' rule, w_h ← w_h · L_h / Σ_k w_k L_k, with each log L_h raised to at least
-        log(ε · max_k L_k), ε the ``unexplained_scan_probability``: an observation the map does
-        not explain at the right pose happens that often, so none can rule a pose out."""
+    def _weigh(self, log_likelihoods: NDArray[np.float64],
+               log_prior: NDArray[np.float64] | None = None) -> None:
+        """Bayes' rule, w_h ← w_h · π_h · L_h / Σ_k w_k π_k L_k, with each log L_h raised to at
+        least log(ε · max_k L_k), ε the ``unexplained_scan_probability``: an observation the
+        map does not explain at the right pose happens that often, so none can rule a pose out.
+        π = exp(``log_prior``) is what a hypothesis assumed of the map to explain the scan
+        (walls taken for glass), outside that bound."""
         log_l = np.asarray(log_likelihoods, float)
         best = float(log_l.max())
         if self.config.unexplained_scan_probability is not None:
             log_l = np.maximum(log_l, best + math.log(self.config.unexplained_scan_probability))
-        weights = np.array([h.weight for h in self.hypotheses]) * np.exp(log_l - best)
+        log_l = log_l - best
+        if log_prior is not None:
+            log_l = log_l + log_prior
+            log_l -= log_l.max()
+        weights = np.array([h.weight for h in self.hypotheses]) * np.exp(log_l)
         weights /= weights.sum()
         for h, w in zip(self.hypotheses, weights, strict=True):
             h.weight = float(w)
+
+    def _glass_points(self, n_points: int) -> int:
+        """The fewest points on walls seen through one wall for which taking that wall for
+        glass explains the scan better, prior included: each such point moves from seen
+        through (p_t = ``through_probability``) to on a wall seen (p_h = ``hit_probability``),
+        worth n / N · log(p_h / p_t) with n = ``independent_points`` of N points, and the wall
+        costs log(1 / ``glass_probability``) once."""
+        c = self.config
+        per_point = c.independent_points / max(n_points, 1) * math.log(
+            c.hit_probability / c.through_probability)
+        return max(1, math.ceil(math.log(1.0 / c.glass_probability) / per_point))
 
     def _moved(self, odom: NDArray[np.float64]) -> bool:
         if self._last_update is None:

@@ -33,8 +33,9 @@ class IcpResult:
     movable object that gives most: Σ wᵢ (nᵢ·u)² over the paired points, in units of a point
     whose wall faces u squarely, less the largest sum of one object's points, an object being a
     run of beams without a jump of ``max_neighbour_gap`` whose surface facing u is at most
-    :data:`MOVABLE_EXTENT` across (:func:`_largest_movable`). A person walking beside the robot can carry a match along a corridor alone; a
-    direction the rest of the scene does not observe may be that person's motion."""
+    :data:`MOVABLE_EXTENT` across (:func:`_largest_movable`). A person walking beside the
+    robot can carry a match along a corridor alone; a direction the rest of the scene does not
+    observe may be that person's motion."""
     disagreement: tuple[float, int] = (0.0, 0)
     """(Q, dof): how far the scene's objects disagree on the motion along ``weakest``, a χ²
     statistic with dof degrees of freedom on a rigid scene (:func:`_object_disagreement`).

@@ -197,7 +197,8 @@ def scored_hypothesis(pose: NDArray, cov: NDArray, refs: References, matches: Ma
 
 
 def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[str, ...],
-                  max_range: float, margin: float) -> NDArray[np.bool_]:
+                  max_range: float, margin: float,
+                  transparent: NDArray[np.bool_] | None = None) -> NDArray[np.bool_]:
     """Which robot-frame points the map lets the robot see from ``pose`` (N,).
 
     The ray o + t (q − o), t ∈ (0, 1], from the robot o to the point q in the world crosses wall
@@ -206,27 +207,51 @@ def seen_directly(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[
     A crossing more than ``margin`` before the point means the point was seen through that wall.
     A ray through a wall's very end (within ``END_GRAZE`` of it along the wall) passes it: a
     beam at a door frame or an outside corner cannot tell the two sides apart, and a simulated
-    one passes them. Only walls occlude; painted lines do not.
+    one passes them. Only walls occlude; painted lines do not, nor the segments marked
+    ``transparent`` (per segment of the map: walls the laser has been seen to pass).
     """
+    return _crossed_walls(pose, points, map, kinds, max_range, margin, transparent,
+                          nearest=False) < 0
+
+
+def walls_seen_through(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[str, ...],
+                       max_range: float, margin: float,
+                       transparent: NDArray[np.bool_] | None = None) -> NDArray[np.intp]:
+    """For each robot-frame point, the map segment (its index) that the ray from ``pose`` to it
+    crosses first, more than ``margin`` before it (:func:`seen_directly`, which it agrees
+    with); −1 where it crosses none."""
+    return _crossed_walls(pose, points, map, kinds, max_range, margin, transparent,
+                          nearest=True)
+
+
+def _crossed_walls(pose: NDArray, points: NDArray, map: SegmentMap, kinds: tuple[str, ...],
+                   max_range: float, margin: float, transparent: NDArray[np.bool_] | None,
+                   nearest: bool) -> NDArray[np.intp]:
     near = map.segments_near(pose[:2], max_range)
-    near = near[map.kind_mask(kinds)[near] & map.is_wall[near]]
+    keep = map.kind_mask(kinds)[near] & map.is_wall[near]
+    if transparent is not None:
+        keep &= ~transparent[near]
+    near = near[keep]
     if len(near) == 0 or len(points) == 0:
-        return np.ones(len(points), dtype=bool)
+        return np.full(len(points), -1, dtype=np.intp)
     heading = np.array([pose[2]])  # NumPy's cos and sin, as every other placement of points
-    return _unoccluded(float(pose[0]), float(pose[1]), float(np.cos(heading)[0]),
-                       float(np.sin(heading)[0]), np.ascontiguousarray(points, dtype=float),
-                       map.starts[near], map.ends[near], margin)
+    crossed = _crossing(float(pose[0]), float(pose[1]), float(np.cos(heading)[0]),
+                        float(np.sin(heading)[0]), np.ascontiguousarray(points, dtype=float),
+                        map.starts[near], map.ends[near], margin, nearest)
+    return np.where(crossed >= 0, near[np.maximum(crossed, 0)], -1)
 
 
 @njit
-def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, starts: NDArray,
-                ends: NDArray, margin: float) -> NDArray[np.bool_]:
-    """:func:`seen_directly` for the robot at (ox, oy) heading (c, s) = (cos θ, sin θ).
+def _crossing(ox: float, oy: float, c: float, s: float, points: NDArray, starts: NDArray,
+              ends: NDArray, margin: float, nearest: bool) -> NDArray[np.intp]:
+    """:func:`_crossed_walls` for the robot at (ox, oy) heading (c, s) = (cos θ, sin θ): the
+    index into ``starts`` of a wall each point's ray crosses (the nearest one when ``nearest``,
+    else the first tried), −1 for none.
 
     A ray crosses a wall's interior only at a bearing the wall spans from the robot, so each
     point tries only the walls listed for its bearing's bin (:func:`_walls_by_bearing`): the
     same answer as trying every wall."""
-    seen = np.ones(len(points), np.bool_)
+    crossed = np.full(len(points), -1, np.intp)
     # the fraction of each wall's length that is END_GRAZE: u must lie beyond it from both ends
     graze = np.empty(len(starts))
     for j in range(len(starts)):
@@ -240,6 +265,7 @@ def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, start
             continue  # no crossing can be computed: every test below fails on NaN
         t_max = 1.0 - margin / max(math.hypot(dx, dy), 1e-9)  # in units of the point's range
         b = math.floor(math.atan2(dy, dx) / BEARING_STEP) % BEARING_BINS
+        closest = t_max
         for q in range(first[b], first[b + 1]):
             j = walls[q]
             wx, wy = starts[j, 0] - ox, starts[j, 1] - oy
@@ -249,10 +275,12 @@ def _unoccluded(ox: float, oy: float, c: float, s: float, points: NDArray, start
                 continue
             t = (wx * ey - wy * ex) / den
             u = (wx * dy - wy * dx) / den
-            if t > 1e-6 and t < t_max and u > graze[j] and u < 1.0 - graze[j]:
-                seen[i] = False
-                break
-    return seen
+            if t > 1e-6 and t < closest and u > graze[j] and u < 1.0 - graze[j]:
+                crossed[i] = j
+                if not nearest:
+                    break
+                closest = t
+    return crossed
 
 
 BEARING_BINS = 360

@@ -45,10 +45,11 @@ def bank(office, fits, config: HypothesisConfig | None = None, through=None) -> 
     def make_tracker(pose, cov, t):
         return odometry.branch(pose, cov, t)
 
-    def shares(poses, points):
+    def shares(poses, points, glass, glass_points):
         hit = np.asarray(fits(poses), float)
         seen_through = np.zeros(len(hit)) if through is None else np.asarray(through(poses))
-        return np.column_stack((hit, seen_through, 1.0 - hit - seen_through))
+        return (np.column_stack((hit, seen_through, 1.0 - hit - seen_through)),
+                [np.zeros(0, np.intp) for _ in poses])
 
     b = HypothesisBank(office, config or HypothesisConfig(), make_tracker,
                        lambda poses, points: np.asarray(fits(poses), float), shares)
@@ -231,6 +232,75 @@ def test_the_leader_of_poses_that_all_fit_poorly_is_not_reported_likely(office) 
     tracked.seed(0.0, np.zeros(3), SPOTS[:1], [COV], [1.0], origin="tracked")
     weigh(tracked, least_fit=0.45)
     assert tracked.leader.weight == 1.0 and tracked.leader_probability(0.45) == 0.0
+
+
+def test_a_wall_taken_for_glass_is_paid_for_once(office) -> None:
+    """Two poses explain each scan alike (0.7 of it on walls), but the first only by taking a
+    wall for glass on the first scan. That costs it the prior's odds once, P(glass) = 0.05:
+    its weight falls from ½ to 0.05/1.05, and stays there over the scans that follow, which
+    see through the same wall at no further cost."""
+    b = bank(office, lambda poses: [0.7, 0.7][: len(poses)])
+    calls = []
+
+    def first(poses):  # the pose seeded at SPOTS[0] (the westmost), wherever the bank lists it
+        return int(np.argmin(poses[:, 0]))
+
+    def shares(poses, points, glass, glass_points):
+        k = first(poses)
+        calls.append((glass[k].copy(), glass[1 - k].copy()))
+        taken = [np.zeros(0, np.intp) for _ in poses]
+        if not glass[k][3]:
+            taken[k] = np.array([3])
+        return np.tile([0.7, 0.0, 0.3], (len(poses), 1)), taken
+
+    b._shares = shares
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    g = HypothesisConfig().glass_probability
+    for k in (1, 2, 3):
+        weigh(b, odom=(STEP * k, 0.0, 0.0))
+        poses = np.array([h.pose for h in b.hypotheses])
+        assert b.hypotheses[first(poses)].weight == pytest.approx(g / (1.0 + g)), k
+    assert [mine[3] for mine, _ in calls] == [False, True, True]  # the pose keeps its glass
+    assert not any(other.any() for _, other in calls)
+
+
+def test_a_pose_sees_through_glass_onto_the_walls_beyond_only() -> None:
+    """A room whose front wall, 2 m ahead, is glass: the laser passes it and meets the back
+    wall 4 m ahead. With the map's glass wall opaque, the points beyond it are seen through a
+    wall. Taken for glass (enough points on the back wall beyond it), they lie on a wall seen,
+    the wall is returned as taken, and a pose that has it already takes nothing new; a point
+    beyond the glass where the map has no wall is still seen through."""
+    from fusion.ambiguity.fit import ScanFit
+    from fusion.settings.ambiguity import AmbiguityConfig
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+    from houghloc import SegmentMap
+    from houghloc.geometry import ranges_to_points
+
+    walls = np.array([[-1, -3, 4, -3], [4, -3, 4, 3], [4, 3, -1, 3], [-1, 3, -1, -3],
+                      [2, -1, 2, 1]], dtype=float)
+    glass = 4
+    seen_by_laser = SegmentMap(walls[:glass, :2], walls[:glass, 2:], name="room, no glass")
+    room = SegmentMap(walls[:, :2], walls[:, 2:], name="room")
+    pose = np.zeros(3)
+    scan = laser_scan(seen_by_laser, pose, np.random.default_rng(0), LaserConfig(max_range=10.0))
+    points = ranges_to_points(scan.ranges, scan.angles, 10.0, 0.0)
+    fit = ScanFit(room, AmbiguityConfig())
+    plain = fit.shares(pose[None], points)[0]
+    assert plain[1] > 0.1  # beyond the glass
+    none = np.zeros(len(walls), dtype=bool)
+    kept, taken = fit.shares_with_glass(pose[None], points, [none], len(points) + 1)
+    assert np.allclose(kept[0], plain) and len(taken[0]) == 0
+    through, taken = fit.shares_with_glass(pose[None], points, [none], 5)
+    assert taken[0].tolist() == [glass]
+    assert through[0, 1] == 0.0 and through[0, 0] == pytest.approx(plain[0] + plain[1])
+    has = none.copy()
+    has[glass] = True
+    again, taken = fit.shares_with_glass(pose[None], points, [has], 5)
+    assert np.allclose(again, through) and len(taken[0]) == 0
+    off_wall = np.vstack((points, [[3.0, 0.0]]))  # beyond the glass, on no wall
+    shares, _ = fit.shares_with_glass(pose[None], off_wall, [has], 5)
+    assert shares[0, 1] == pytest.approx(1.0 / len(off_wall))
 
 
 def test_no_scan_and_no_landmark_weighs_more_than_one_over_epsilon(office) -> None:

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from fusion.settings.ambiguity import AmbiguityConfig
 from houghloc import SegmentMap
-from houghloc.hypothesis_scores import seen_directly
+from houghloc.hypothesis_scores import seen_directly, walls_seen_through
 from houghloc.map_lookup import wall_distance
 
 TRACKED_FITS = 200  # accepted scans whose fits tell what a right pose fits
@@ -84,17 +84,54 @@ class ScanFit:
         if len(points) == 0:
             out[:, 2] = 1.0
             return out
+        on = self._on_walls(poses, points, kinds)
+        reach = _reach(points)  # the same points at every pose
+        for k, pose in enumerate(poses):
+            _fill(out[k], on[k], self._seen(pose, points, kinds, reach))
+        return out
+
+    def shares_with_glass(self, poses: NDArray, points: NDArray, glass: list[NDArray[np.bool_]],
+                          glass_points: int, kinds: tuple[str, ...] = ("wall",)
+                          ) -> tuple[NDArray[np.float64], list[NDArray[np.intp]]]:
+        """:meth:`shares` where the robot at pose k sees through the walls ``glass[k]`` (per
+        segment of the map) onto the walls beyond, and through any other wall that
+        ``glass_points`` or more of the points, each on a wall beyond it, were seen through:
+        the walls newly taken for glass at each pose are returned with the shares. A point seen
+        through glass onto no wall is still seen through: a pose whose rays pass a wall onto
+        nothing explains nothing by it (a pose straddling the building's outer wall)."""
+        poses = np.asarray(poses, float).reshape(-1, 3)
+        out = np.zeros((len(poses), 3))
+        taken: list[NDArray[np.intp]] = [np.zeros(0, np.intp) for _ in range(len(poses))]
+        if len(points) == 0:
+            out[:, 2] = 1.0
+            return out, taken
+        on = self._on_walls(poses, points, kinds)
+        reach = _reach(points)
+        margin = self.config.global_match.visibility_margin
+        for k, pose in enumerate(poses):
+            pose = np.asarray(pose, float)
+            see_glass = np.asarray(glass[k], bool)
+            crossed = walls_seen_through(pose, points, self.map, kinds, reach, margin, see_glass)
+            beyond = crossed[on[k] & (crossed >= 0)]
+            if len(beyond):
+                counts = np.bincount(beyond)
+                taken[k] = np.flatnonzero(counts >= glass_points)
+            if len(taken[k]):
+                see_glass = see_glass.copy()
+                see_glass[taken[k]] = True
+                crossed = walls_seen_through(pose, points, self.map, kinds, reach, margin,
+                                             see_glass)
+            seen = self._seen(pose, points, kinds, reach) if see_glass.any() else crossed < 0
+            _fill(out[k], on[k], seen | (on[k] & (crossed < 0)))
+        return out, taken
+
+    def _on_walls(self, poses: NDArray, points: NDArray, kinds: tuple[str, ...]
+                  ) -> NDArray[np.bool_]:
+        """P×N: which points lie within the global matcher's inlier distance of a wall."""
         gm = self.config.global_match
         walls = wall_distance(self.map, tuple(kinds), gm.dt_cell)
         # float32 distances, compared in float32 as on_walls does
-        on = walls.at(poses, points[:, 0], points[:, 1]) <= np.float32(gm.inlier_distance)
-        reach = _reach(points)  # the same points at every pose
-        for k, pose in enumerate(poses):
-            seen = self._seen(pose, points, kinds, reach)
-            out[k, 0] = np.mean(on[k] & seen)
-            out[k, 1] = 1.0 - np.mean(seen)
-        out[:, 2] = 1.0 - out[:, 0] - out[:, 1]
-        return out
+        return walls.at(poses, points[:, 0], points[:, 1]) <= np.float32(gm.inlier_distance)
 
     def _seen(self, pose: NDArray, points: NDArray, kinds: tuple[str, ...], reach: float
               ) -> NDArray[np.bool_]:
@@ -192,3 +229,10 @@ class ScanFit:
 def _reach(points: NDArray) -> float:
     """The range of the farthest of (non-empty) robot-frame ``points``."""
     return float(np.max(np.hypot(points[:, 0], points[:, 1])))
+
+
+def _fill(row: NDArray[np.float64], on: NDArray[np.bool_], seen: NDArray[np.bool_]) -> None:
+    """One pose's shares: on a wall seen directly, seen through a wall, and neither."""
+    row[0] = np.mean(on & seen)
+    row[1] = 1.0 - np.mean(seen)
+    row[2] = 1.0 - row[0] - row[1]

@@ -248,17 +248,17 @@ class AmbiguityManager:
     def mode_probability(self) -> float:
         """The probability that the reported pose's filter is around the right place at all
         (:mod:`fusion.integrity`): while tracking, 1 less the share of the evidence that gives
-        tracking up gathered since the last usable fix; the leader's weight among the followed
-        hypotheses once a global match has proposed rivals and while its fits say it may be
-        right (:meth:`HypothesisBank.leader_probability`), 0 otherwise, while collecting views
-        with none, or lost."""
+        tracking up gathered since the last usable fix; while hypotheses are followed, the
+        leader's weight times the chance that its fits pass the bank's test
+        (:meth:`HypothesisBank.leader_probability`), 0 before a global match has proposed
+        rivals to it, while collecting views with none, or lost."""
         if self.state is State.TRACKING:
             return 1.0 - self.watch.evidence_against
         bank = self.relocalization.bank
         if bank is None:
             return 0.0  # no hypothesis: nothing is followed
-        # the leader's weight, read as the bank's verdict reads it: 0 before a rival is
-        # proposed (nothing to weigh it against), and while its fits say none followed is right
+        # read as the bank's verdict reads it: 0 before a rival is proposed (nothing to weigh
+        # the leader against), little while its fits say none of the poses followed is right
         return bank.leader_probability(self.relocalization.least_right_fit())
 
     # ------------------------------------------------------------------ transitions

@@ -49,6 +49,15 @@ class HypothesisConfig(BaseModel):
     unmapped_through_probability: float = Field(
         0.02, gt=0.0, lt=1.0, description="share of a scan's points seen through a wall where "
         "the map does not show the robot's surroundings")
+    # A mapped wall may not stop the laser: glass, a door the map shows closed. Seen through
+    # onto the walls beyond it, it is one fact about the building, not new evidence with
+    # every scan: a followed pose takes it for glass once, at this prior's cost, and sees
+    # through it from then on; its points seen through onto nothing stay evidence against it.
+    glass_probability: float = Field(
+        0.05, gt=0.0, lt=1.0, description="prior probability that a mapped wall does not stop "
+        "the laser (glass, a door the map shows closed): a followed pose may take a wall for "
+        "one, once, at this cost, when its scan's points seen through the wall onto walls "
+        "beyond it outweigh it")
     min_scans: int = Field(
         2, ge=1, le=RECENT_FITS, description="weighed scans a hypothesis needs before it may be "
         "taken: the match's own views are what proposed it")
