@@ -347,58 +347,52 @@ class HypothesisBank:
         """The likeliest hypothesis (the bank must not be empty)."""
         return max(self.hypotheses, key=lambda h: h.weight)
 
-    def _fit_noise(self, fit: float) -> float:
-        """How far below ``fit`` the mean of ``min_scans`` fits of a pose that fits ``fit`` falls
-        with probability 1 − ``accept_probability``: a scan is worth n = ``independent_points``
-        observations, so that mean has σ = √(f(1 − f) / (n · min_scans)) (binomial), and the
-        bound is z σ with z the standard normal quantile at ``accept_probability``. Tracking's
-        fits come from the places it went through; a right pose elsewhere sees other clutter."""
+    def _fit_margin(self, h: Hypothesis, least_fit: float | None) -> float:
+        """How far ``h``'s recent fits pass the verdict's test, in units of their sampling
+        noise: x = (m − f)/σ + z, passed while x ≥ 0. m is the mean of its last ``min_scans``
+        fits, f = ``least_fit`` the least a right pose fits (tracking's accepted scans; +∞ when
+        not known yet), and σ = √(f(1 − f) / (n · min_scans)) the binomial noise of m for a pose
+        that fits f, a scan being worth n = ``independent_points`` observations; z is the
+        standard normal quantile at ``accept_probability``, so that a right pose's mean falls
+        below the bound f − z σ with probability 1 − ``accept_probability``. Tracking's fits
+        come from the places it went through; a right pose elsewhere sees other clutter."""
+        if least_fit is None:
+            return math.inf
         c = self.config
-        f = min(max(fit, 0.0), 1.0)
-        return self._z_accept * math.sqrt(f * (1.0 - f) / (c.independent_points * c.min_scans))
+        f = min(max(least_fit, 0.0), 1.0)
+        sigma = math.sqrt(f * (1.0 - f) / (c.independent_points * c.min_scans))
+        gap = self._recent_fit(h) - least_fit
+        if sigma <= 0.0:
+            return math.inf if gap >= 0.0 else -math.inf
+        return gap / sigma + self._z_accept
+
+    def _recent_fit(self, h: Hypothesis) -> float:
+        """The mean of ``h``'s last ``min_scans`` fits, what the verdict tests."""
+        return float(np.mean(list(h.fits)[-self.config.min_scans:]))
 
     def leader_probability(self, least_fit: float | None) -> float:
         """The probability that the leader is the right pose, as the verdict reads the bank:
         its weight among the followed poses, once a global match has proposed rivals to it
-        (0 before), times the probability that its fits pass the verdict's test
-        (:meth:`_may_be_right`): a weight is a share among the poses followed, and when none
-        of them fits as a right pose does (a place the map lacks, where the rivals fit worse
-        still), the leader's share of 1 says nothing of the robot.
-
-        The test's chance: the mean m of the leader's last ``min_scans`` fits has the sampling
-        noise σ of :meth:`_fit_noise` (its bound is z σ), and passes while m ≥ f − z σ, f the
-        least a right pose fits; the probability that its expectation does is Φ((m − f)/σ + z).
-        A leader with fewer fits is not tested: its weight stands."""
+        (0 before), times the chance Φ(x) that its fits pass the verdict's test
+        (:meth:`_fit_margin`): a weight is a share among the poses followed, and when none of
+        them fits as a right pose does (a place the map lacks, where the rivals fit worse
+        still), the leader's share of 1 says nothing of the robot. A leader with fewer than
+        ``min_scans`` fits is not tested yet: its weight stands."""
         if not self.hypotheses or not self._contested:
             return 0.0
         leader = self.leader
-        c = self.config
-        if least_fit is None or leader.updates < c.min_scans:
+        if leader.updates < self.config.min_scans:
             return float(leader.weight)
-        recent = float(np.mean(list(leader.fits)[-c.min_scans:]))
-        sigma = self._fit_noise(least_fit) / self._z_accept
-        if sigma <= 0.0:
-            return float(leader.weight) if recent >= least_fit else 0.0
-        return float(leader.weight) * NormalDist().cdf((recent - least_fit) / sigma
-                                                       + self._z_accept)
-
-    def _may_be_right(self, h: Hypothesis, least_fit: float | None) -> bool:
-        """Has ``h`` been weighed on ``min_scans`` scans, and do its recent fits reach what
-        tracking's accepted scans fit (``least_fit``, when known) within their sampling noise?
-        Otherwise it is the best of poses that all fit poorly: none is right."""
-        c = self.config
-        if h.updates < c.min_scans:
-            return False
-        recent = float(np.mean(list(h.fits)[-c.min_scans:]))
-        return least_fit is None or recent >= least_fit - self._fit_noise(least_fit)
+        return float(leader.weight) * NormalDist().cdf(self._fit_margin(leader, least_fit))
 
     def _verdict(self, least_fit: float | None) -> BankVerdict:
         leader = self.leader
         c = self.config
+        # the best of poses that all fit poorly is not taken: none of them is right
         if (not self._contested or leader.weight < c.accept_probability
-                or not self._may_be_right(leader, least_fit)):
+                or leader.updates < c.min_scans or self._fit_margin(leader, least_fit) < 0.0):
             return BankVerdict()
-        recent = float(np.mean(list(leader.fits)[-c.min_scans:]))
+        recent = self._recent_fit(leader)
         return BankVerdict(leader.pose.copy(), leader.cov.copy(),
                            f"{leader.origin} hypothesis of weight {leader.weight:.3f} after "
                            f"{leader.updates} scans (recent fit {recent:.2f}), "

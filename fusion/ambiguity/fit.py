@@ -79,16 +79,7 @@ class ScanFit:
         """At each of ``poses`` (P×3), the shares of ``points`` (robot frame) on a wall that
         the robot there sees directly (within the global matcher's inlier distance), seen
         through a wall (:meth:`seen_through`), and neither: P×3, each row summing to 1."""
-        poses = np.asarray(poses, float).reshape(-1, 3)
-        out = np.zeros((len(poses), 3))
-        if len(points) == 0:
-            out[:, 2] = 1.0
-            return out
-        on = self._on_walls(poses, points, kinds)
-        reach = _reach(points)  # the same points at every pose
-        for k, pose in enumerate(poses):
-            _fill(out[k], on[k], self._seen(pose, points, kinds, reach))
-        return out
+        return self._shares(poses, points, kinds, None, 0)[0]
 
     def shares_with_glass(self, poses: NDArray, points: NDArray, glass: list[NDArray[np.bool_]],
                           glass_points: int, kinds: tuple[str, ...] = ("wall",)
@@ -99,30 +90,35 @@ class ScanFit:
         the walls newly taken for glass at each pose are returned with the shares. A point seen
         through glass onto no wall is still seen through: a pose whose rays pass a wall onto
         nothing explains nothing by it (a pose straddling the building's outer wall)."""
+        return self._shares(poses, points, kinds, glass, glass_points)
+
+    def _shares(self, poses: NDArray, points: NDArray, kinds: tuple[str, ...],
+                glass: list[NDArray[np.bool_]] | None, glass_points: int
+                ) -> tuple[NDArray[np.float64], list[NDArray[np.intp]]]:
         poses = np.asarray(poses, float).reshape(-1, 3)
         out = np.zeros((len(poses), 3))
-        taken: list[NDArray[np.intp]] = [np.zeros(0, np.intp) for _ in range(len(poses))]
+        taken = [np.zeros(0, np.intp) for _ in range(len(poses))]
         if len(points) == 0:
             out[:, 2] = 1.0
             return out, taken
         on = self._on_walls(poses, points, kinds)
-        reach = _reach(points)
+        reach = _reach(points)  # the same points at every pose
         margin = self.config.global_match.visibility_margin
         for k, pose in enumerate(poses):
-            pose = np.asarray(pose, float)
-            see_glass = np.asarray(glass[k], bool)
-            crossed = walls_seen_through(pose, points, self.map, kinds, reach, margin, see_glass)
-            beyond = crossed[on[k] & (crossed >= 0)]
-            if len(beyond):
-                counts = np.bincount(beyond)
-                taken[k] = np.flatnonzero(counts >= glass_points)
-            if len(taken[k]):
-                see_glass = see_glass.copy()
-                see_glass[taken[k]] = True
+            seen = self._seen(pose, points, kinds, reach)
+            if glass is not None:
+                see_glass = np.asarray(glass[k], bool)
                 crossed = walls_seen_through(pose, points, self.map, kinds, reach, margin,
                                              see_glass)
-            seen = self._seen(pose, points, kinds, reach) if see_glass.any() else crossed < 0
-            _fill(out[k], on[k], seen | (on[k] & (crossed < 0)))
+                counts = np.bincount(crossed[on[k] & (crossed >= 0)])
+                taken[k] = np.flatnonzero(counts >= glass_points)
+                if len(taken[k]):
+                    see_glass = see_glass.copy()
+                    see_glass[taken[k]] = True
+                    crossed = walls_seen_through(pose, points, self.map, kinds, reach, margin,
+                                                 see_glass)
+                seen |= on[k] & (crossed < 0)  # seen through glass onto a wall
+            _fill(out[k], on[k], seen)
         return out, taken
 
     def _on_walls(self, poses: NDArray, points: NDArray, kinds: tuple[str, ...]
