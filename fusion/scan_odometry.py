@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.motion import OdometryMotionModel, increment
+from fusion.motion import OdometryMotionModel, increment, interpolate
 from fusion.scan_icp import IcpResult, point_to_line_icp
 from fusion.settings.scan_odometry import ScanOdometryConfig
 from houghloc.geometry import compose, wrap_scalar
@@ -121,6 +121,8 @@ class ScanOdometry:
         increment: the scans stopped following each other (the robot was carried)"""
         self._wheels: NDArray[np.float64] | None = None  # newest wheel reading
         self._wheels_t = math.nan  # its time (NaN: not given)
+        self._previous: tuple[float, NDArray[np.float64]] | None = None  # the reading before
+        self._newest_unmeasured = 0.0  # seconds the newest reading's motion was not measured
         self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)  # between readings
         self._readings = 0  # wheel readings since the previous scan
         self._anchor_wheels: NDArray[np.float64] | None = None  # wheels at the reference scan
@@ -150,7 +152,10 @@ class ScanOdometry:
         before it whose motion the wheels missed, see :class:`fusion.events.Odometry`)."""
         if t > self._wheels_t:
             self._intervals.append(t - self._wheels_t)
+            if self._wheels is not None:
+                self._previous = (self._wheels_t, self._wheels)
         self._wheels_t = t
+        self._newest_unmeasured = unmeasured
         self._readings += 1
         self._wheels = np.array((x, y, theta), dtype=float)
         self._unmeasured += unmeasured
@@ -171,7 +176,8 @@ class ScanOdometry:
             self.skip(t, points, unread=late)
             return None
         assert self._anchor is not None and self._anchor_wheels is not None  # set with _points
-        wheel_step = increment(self._anchor_wheels, self._wheels)
+        wheels = self._wheels_at(t)
+        wheel_step = increment(self._anchor_wheels, wheels)
         icp = self._align(points, wheel_step)
         fused = self._fuse(t, wheel_step, icp)
         if fused is None:
@@ -181,7 +187,26 @@ class ScanOdometry:
             return None
         self.matched += 1
         step, cov = fused
-        return Correction(t, compose(self._anchor, step), self._time, cov, points, self._wheels)
+        return Correction(t, compose(self._anchor, step), self._time, cov, points, wheels)
+
+    def _wheels_at(self, t: float) -> NDArray[np.float64]:
+        """The wheels' pose at the scan's time t. A scan falls between two wheel readings, and
+        the match measures the motion between the scans' times: the wheels' step must span
+        the same interval, or at 0.5 m/s a reading 20 ms older than the scan puts 1 cm of
+        disagreement between the two that neither made. The newest reading is carried along
+        the arc from the one before it (:func:`fusion.motion.interpolate`), at their speed, to
+        t, when the two are regular readings (at most twice the usual interval apart, no
+        motion missed) and t is as near the newest (the wheels are not late,
+        :meth:`_wheels_late`); else the newest reading stands."""
+        assert self._wheels is not None
+        if (self._previous is None or not self._intervals or self._newest_unmeasured > 0.0
+                or not math.isfinite(t)):
+            return self._wheels
+        before_t, before = self._previous
+        interval, usual = self._wheels_t - before_t, 2.0 * float(np.median(self._intervals))
+        if not (0.0 < interval <= usual and abs(t - self._wheels_t) <= usual):
+            return self._wheels
+        return interpolate(before, self._wheels, 1.0 + (t - self._wheels_t) / interval)
 
     def _wheels_late(self, t: float) -> bool:
         """The wheels have missed a reading before the scan at t: none came since the previous
@@ -207,8 +232,10 @@ class ScanOdometry:
         """The scan was not corrected: it becomes the reference at its uncorrected pose (an older
         reference would drift out of view). ``unread``: the wheels were late for it, so the
         next scan is not matched to it either (:meth:`_wheels_late`)."""
-        self._anchor = self._corrected_wheels()
-        self._points, self._anchor_wheels, self._time = points, self._wheels, t
+        assert self._anchor is not None and self._anchor_wheels is not None
+        wheels = self._wheels_at(t)
+        self._anchor = compose(self._anchor, increment(self._anchor_wheels, wheels))
+        self._points, self._anchor_wheels, self._time = points, wheels, t
         self._unmeasured, self._unread = 0.0, unread
 
     def _align(self, points: NDArray[np.float64],

@@ -80,6 +80,23 @@ def wheels_then_scan(walls: np.ndarray, start: np.ndarray, motion: np.ndarray,
     return None if correction is None else (correction.pose, correction.step_cov)
 
 
+def test_the_wheels_are_read_at_the_scans_time() -> None:
+    """Wheels read at 50 Hz, the robot at 0.5 m/s along a featureless corridor, where only
+    they observe the motion along it. The first scan comes with a reading; the second 20 ms
+    after the newest one (its own comes after it). The corrected pose moves the 5 cm the robot
+    drove between the scans, not the 4 cm between the readings."""
+    speed, start = 0.5, np.array([0.0, 0.0, 0.0])
+    scan_odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    for k in range(6):  # readings at 0.00 ... 0.10 s
+        scan_odometry.on_wheels(speed * 0.02 * k, 0.0, 0.0, t=0.02 * k)
+    assert scan_odometry.match(0.1, scan_points(CORRIDOR, compose(start, [0.05, 0, 0]))) is None
+    for k in range(6, 10):  # readings at 0.12 ... 0.18 s; the one at 0.20 s is still to come
+        scan_odometry.on_wheels(speed * 0.02 * k, 0.0, 0.0, t=0.02 * k)
+    correction = scan_odometry.match(0.2, scan_points(CORRIDOR, compose(start, [0.10, 0, 0])))
+    assert correction is not None
+    assert correction.pose[0] == pytest.approx(0.10, abs=0.002)
+
+
 def test_wheels_that_report_driving_forward_while_the_robot_backs_up_are_overruled() -> None:
     """Freiburg 079's odometry never reports reversing: the scans say where the robot went.
     Wheels 40 cm off are far beyond their noise, so they lose their say."""
