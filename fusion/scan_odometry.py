@@ -124,7 +124,6 @@ class ScanOdometry:
         self._previous: tuple[float, NDArray[np.float64]] | None = None  # the reading before
         self._newest_unmeasured = 0.0  # seconds the newest reading's motion was not measured
         self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)  # between readings
-        self._readings = 0  # wheel readings since the previous scan
         self._anchor_wheels: NDArray[np.float64] | None = None  # wheels at the reference scan
         self._anchor: NDArray[np.float64] | None = None  # corrected pose there
         self._points: NDArray[np.float64] | None = None  # the reference scan
@@ -156,7 +155,6 @@ class ScanOdometry:
                 self._previous = (self._wheels_t, self._wheels)
         self._wheels_t = t
         self._newest_unmeasured = unmeasured
-        self._readings += 1
         self._wheels = np.array((x, y, theta), dtype=float)
         self._unmeasured += unmeasured
         if self._anchor is None:
@@ -167,7 +165,7 @@ class ScanOdometry:
         """The corrected odometry pose at a scan taken at t (the wheels are read at their newest
         reading), or None when the scan cannot be matched; the first scan becomes the
         reference. ``points``: finite, robot frame (the Localizer has cleaned them)."""
-        late, self._readings = self._wheels_late(t), 0
+        late = self._wheels_late(t)
         self.broke = False
         if self._wheels is None or len(points) < self.config.min_points:
             return None
@@ -209,16 +207,19 @@ class ScanOdometry:
         return interpolate(before, self._wheels, 1.0 + (t - self._wheels_t) / interval)
 
     def _wheels_late(self, t: float) -> bool:
-        """The wheels have missed a reading before the scan at t: none came since the previous
-        scan, and their newest is older than twice their usual interval (the median of the
-        last ones; readings that share a stamp still come, and are not late). Their increment
-        would then say the robot stood still since, and the match would be fused with that;
-        instead the scan becomes the reference, and the filter carries the pose past the
-        wheels' newest reading by itself (:meth:`fusion.tracker.PoseTracker.pose_at`). The
-        scan after it is not matched to it either: the wheels' increment from their reading
-        before the late scan spans the motion before that scan too (over an odometry gap of
-        seconds, metres against a match of one scan interval)."""
-        if self._readings > 0 or len(self._intervals) < _INTERVALS_KEPT // 2:
+        """The wheels have missed a reading before the scan at t: their newest is older than
+        twice their usual interval (the median of the last ones; readings that share a stamp
+        still come, and are not late), whether or not one came since the previous scan. Their
+        increment would then say the robot stood still since that reading, and the match,
+        which along a featureless corridor has only that increment to go by, would be fused
+        with it: the first scan of an odometry gap, 80 ms after the last reading, moved 1 cm
+        where the robot drove 5, and the filter then held that speed through the gap. Instead
+        the scan becomes the reference, and the filter carries the pose past the wheels'
+        newest reading by itself (:meth:`fusion.tracker.PoseTracker.pose_at`). The scan after
+        it is not matched to it either: the wheels' increment from their reading before the
+        late scan spans the motion before that scan too (over an odometry gap of seconds,
+        metres against a match of one scan interval)."""
+        if len(self._intervals) < _INTERVALS_KEPT // 2:
             return False
         return t - self._wheels_t > 2.0 * float(np.median(self._intervals))
 

@@ -590,6 +590,22 @@ def test_a_turn_faster_than_the_robot_turns_is_a_carry_not_a_slip() -> None:
     assert correction is None and fast.broke
 
 
+def test_the_first_scan_of_an_odometry_gap_is_not_matched_to_the_stale_wheels() -> None:
+    """Wheels at 50 Hz along a featureless corridor, where only they observe the motion along
+    it: a scan comes 80 ms after their last reading, which came since the previous scan. Their
+    step to it is 1 cm of the robot's 5; fused with the match, the filter would hold 0.1 m/s
+    through the gap. The scan is not matched: it becomes the reference, the tracker carries
+    the pose at the wheels' speed."""
+    speed, start = 0.5, np.array([0.0, 0.0, 0.0])
+    scan_odometry = ScanOdometry(CONFIG, OdometryMotionModel(WHEELS))
+    for k in range(41):  # readings at 0.00 ... 0.80 s
+        scan_odometry.on_wheels(speed * 0.02 * k, 0.0, 0.0, t=0.02 * k)
+    assert scan_odometry.match(0.8, scan_points(CORRIDOR, compose(start, [0.4, 0, 0]))) is None
+    scan_odometry.on_wheels(speed * 0.82, 0.0, 0.0, t=0.82)  # the last reading before the gap
+    assert scan_odometry.match(0.9, scan_points(CORRIDOR, compose(start, [0.45, 0, 0]))) is None
+    assert scan_odometry.reference_time == 0.9 and not scan_odometry.broke
+
+
 def test_the_scan_after_one_the_wheels_were_late_for_is_not_matched_to_it() -> None:
     """No wheel reading for 3 s while the robot drives 1.5 m, then the reading with all of
     that motion: the scan during the gap becomes the reference uncorrected, and the scan
