@@ -100,7 +100,7 @@ class Correction:
     since: float  # the time of the reference scan
     step_cov: NDArray[np.float64]  # covariance of the corrected increment since then
     points: NDArray[np.float64]
-    wheels: NDArray[np.float64]  # the wheel odometry pose it corrects
+    wheels: NDArray[np.float64]  # the wheels' pose at the scan's time, which it corrects
 
 
 class ScanOdometry:
@@ -123,6 +123,8 @@ class ScanOdometry:
         self._wheels_t = math.nan  # its time (NaN: not given)
         self._previous: tuple[float, NDArray[np.float64]] | None = None  # the reading before
         self._newest_unmeasured = 0.0  # seconds the newest reading's motion was not measured
+        self._readings = 0  # wheel readings since the previous scan
+        self._timed = False  # the newest reading's stamp is later than the one before it
         self._intervals: deque[float] = deque(maxlen=_INTERVALS_KEPT)  # between readings
         self._anchor_wheels: NDArray[np.float64] | None = None  # wheels at the reference scan
         self._anchor: NDArray[np.float64] | None = None  # corrected pose there
@@ -149,11 +151,13 @@ class ScanOdometry:
                   t: float = math.nan) -> tuple[float, float, float]:
         """The corrected odometry pose for a wheel reading taken at t (``unmeasured``: seconds
         before it whose motion the wheels missed, see :class:`fusion.events.Odometry`)."""
-        if t > self._wheels_t:
+        self._timed = t > self._wheels_t
+        if self._timed:
             self._intervals.append(t - self._wheels_t)
             if self._wheels is not None:
                 self._previous = (self._wheels_t, self._wheels)
         self._wheels_t = t
+        self._readings += 1
         self._newest_unmeasured = unmeasured
         self._wheels = np.array((x, y, theta), dtype=float)
         self._unmeasured += unmeasured
@@ -162,10 +166,10 @@ class ScanOdometry:
         return tuple(self._corrected_wheels().tolist())
 
     def match(self, t: float, points: NDArray[np.float64]) -> Correction | None:
-        """The corrected odometry pose at a scan taken at t (the wheels are read at their newest
-        reading), or None when the scan cannot be matched; the first scan becomes the
+        """The corrected odometry pose at a scan taken at t (the wheels read at t,
+        :meth:`_wheels_at`), or None when the scan cannot be matched; the first scan becomes the
         reference. ``points``: finite, robot frame (the Localizer has cleaned them)."""
-        late = self._wheels_late(t)
+        late, self._readings = self._wheels_late(t), 0
         self.broke = False
         if self._wheels is None or len(points) < self.config.min_points:
             return None
@@ -201,15 +205,17 @@ class ScanOdometry:
                 or not math.isfinite(t)):
             return self._wheels
         before_t, before = self._previous
-        interval, usual = self._wheels_t - before_t, 2.0 * float(np.median(self._intervals))
+        interval, usual = self._wheels_t - before_t, self._longest_interval()
         if not (0.0 < interval <= usual and abs(t - self._wheels_t) <= usual):
             return self._wheels
         return interpolate(before, self._wheels, 1.0 + (t - self._wheels_t) / interval)
 
     def _wheels_late(self, t: float) -> bool:
         """The wheels have missed a reading before the scan at t: their newest is older than
-        twice their usual interval (the median of the last ones; readings that share a stamp
-        still come, and are not late), whether or not one came since the previous scan. Their
+        twice their usual interval (the median of the last ones), and either none came since
+        the previous scan or the newest was timed by its stamp (later than the one before it).
+        Readings that repeat one stamp still come, and are not late; but a reading that came
+        since the previous scan at its own time says nothing of the time since. Their
         increment would then say the robot stood still since that reading, and the match,
         which along a featureless corridor has only that increment to go by, would be fused
         with it: the first scan of an odometry gap, 80 ms after the last reading, moved 1 cm
@@ -219,9 +225,15 @@ class ScanOdometry:
         it is not matched to it either: the wheels' increment from their reading before the
         late scan spans the motion before that scan too (over an odometry gap of seconds,
         metres against a match of one scan interval)."""
-        if len(self._intervals) < _INTERVALS_KEPT // 2:
+        if len(self._intervals) < _INTERVALS_KEPT // 2 or (self._readings > 0
+                                                            and not self._timed):
             return False
-        return t - self._wheels_t > 2.0 * float(np.median(self._intervals))
+        return t - self._wheels_t > self._longest_interval()
+
+    def _longest_interval(self) -> float:
+        """s: the longest the wheels may go between readings and still be on time, twice their
+        usual interval (the median of the last ones)."""
+        return 2.0 * float(np.median(self._intervals))
 
     def commit(self, correction: Correction) -> None:
         """The filter took the corrected pose: the scan becomes the reference for the next."""
