@@ -245,9 +245,8 @@ class ScanOdometry:
         """The scan was not corrected: it becomes the reference at its uncorrected pose (an older
         reference would drift out of view). ``unread``: the wheels were late for it, so the
         next scan is not matched to it either (:meth:`_wheels_late`)."""
-        assert self._anchor is not None and self._anchor_wheels is not None
         wheels = self._wheels_at(t)
-        self._anchor = compose(self._anchor, increment(self._anchor_wheels, wheels))
+        self._anchor = self._corrected_wheels(wheels)
         self._points, self._anchor_wheels, self._time = points, wheels, t
         self._unmeasured, self._unread = 0.0, unread
 
@@ -267,11 +266,14 @@ class ScanOdometry:
             if icp is not None and (best is None or icp.overlap > best.overlap):
                 best = icp
         return best
-    def _corrected_wheels(self) -> NDArray[np.float64]:
-        """The newest wheel reading in the corrected frame: chained onto the reference scan."""
+    def _corrected_wheels(self, wheels: NDArray[np.float64] | None = None
+                          ) -> NDArray[np.float64]:
+        """A wheel pose (the newest reading by default) in the corrected frame: chained onto
+        the reference scan."""
         assert self._anchor is not None and self._anchor_wheels is not None
         assert self._wheels is not None
-        return compose(self._anchor, increment(self._anchor_wheels, self._wheels))
+        return compose(self._anchor, increment(self._anchor_wheels,
+                                               self._wheels if wheels is None else wheels))
 
     def _turn_limit(self, t: float) -> float:
         """rad: the most a match at t may turn from the wheels' increment since the reference
