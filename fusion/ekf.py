@@ -4,6 +4,15 @@ filterpy does the algebra (prediction of P, gain, Joseph-form update); this clas
 a pose needs: the nonlinear odometry prediction x ← x ⊕ δ, a measurement residual whose angle is
 wrapped, the heading wrapped after each update, a symmetric positive-definite P, updates
 restricted to the observable directions, and NIS gating.
+
+The wheels' remaining scale error e (true distance = (1 + e) × the calibrated one, e ~ N(0, σ_e²)
+with σ_e the wheel-scale estimate's own) is a *consider* parameter (Schmidt–Kalman): the filter
+carries its cross-covariance with the pose, c = Cov(x, e) = σ_e² d, but never estimates it (the
+learner of :mod:`fusion.wheel_scale` does, robustly, from chords between full fixes). A scale error
+is systematic: along a straight path of L metres it moves the pose by e·L, which zero-mean
+per-step noise (σ ∝ √L) cannot represent, and where fixes observe only the across-corridor
+direction the along-corridor σ must grow with L or the filter is confidently wrong before the
+scale is learned.
 """
 
 from __future__ import annotations
@@ -100,6 +109,8 @@ class PoseEKF(ExtendedKalmanFilter):
         super().__init__(dim_x=3, dim_z=3)
         self.x = np.array(pose, dtype=float)
         self.P = np.array(cov, dtype=float)
+        self.d = np.zeros(3)
+        """the pose's sensitivity to the wheels' scale error, Cov(x, e)/σ_e² (module docstring)"""
         # χ² quantiles per measurement dimension, computed once: gate_prob None disables gating.
         self.gates = {
             k: (math.inf if gate_prob is None else gate_threshold(gate_prob, k)) for k in (1, 2, 3)
@@ -109,15 +120,31 @@ class PoseEKF(ExtendedKalmanFilter):
         """x⁻ = x ⊕ δ: the nonlinear state prediction (filterpy's hook for it)."""
         self.x = compose(self.x, u)
 
-    def predict_odometry(self, delta: Pose, q_delta: NDArray[np.float64]) -> None:
-        """Predict with an odometry increment δ (robot frame) whose covariance is ``q_delta``.
+    def predict_odometry(self, delta: Pose, q_delta: NDArray[np.float64],
+                         step_scale: NDArray[np.float64] | None = None,
+                         scale_variance: float = 0.0) -> None:
+        """Predict with an odometry increment δ (robot frame) whose covariance is ``q_delta``
+        and whose sensitivity to the wheels' scale error e is ``step_scale`` = ∂δ/∂e (None:
+        (δ_x, δ_y, 0), the wheels' own step; a step scan matching measured depends on the
+        wheels only as far as they were weighted), e of variance ``scale_variance`` (σ_e²).
 
         F and G are taken at the prior; filterpy then computes x⁻ = x ⊕ δ and
-        P⁻ = F P Fᵀ + Q with Q = G Q_δ Gᵀ (the increment's noise rotated into ``map``).
+        P⁻ = F P Fᵀ + Q with Q = G Q_δ Gᵀ (the increment's noise rotated into ``map``) plus the
+        scale's share. A scale error e moves x⁻ by b·e, b = G ∂δ/∂e, so for the joint state
+        (x, e)
+            P⁻ = F P Fᵀ + G Q_δ Gᵀ + σ_e² (F d bᵀ + b dᵀ Fᵀ + b bᵀ),    d⁻ = F d + b.
         """
         f, g = motion_jacobians(self.x, delta)
         self.F = f
-        self.Q = g @ q_delta @ g.T
+        q = g @ q_delta @ g.T
+        if step_scale is None:
+            step_scale = np.array([float(delta[0]), float(delta[1]), 0.0])
+        b = g @ step_scale
+        moved = f @ self.d
+        if scale_variance > 0.0:
+            q = q + scale_variance * (np.outer(moved, b) + np.outer(b, moved) + np.outer(b, b))
+        self.Q = q
+        self.d = moved + b
         self.predict(u=delta)
         self.P = _symmetrized(self.P)
 
@@ -165,4 +192,6 @@ class PoseEKF(ExtendedKalmanFilter):
             return UpdateOutcome(False, nis, dof, y, status=ScanStatus.REJECTED)
         self.x[2] = wrap_scalar(self.x[2])
         self.P = symmetric_pd(self.P)
+        # Schmidt: e itself is not updated, its cross-covariance is, Cov(x⁺, e) = (I − K H) c
+        self.d = self.d - self.K @ (h @ self.d)
         return UpdateOutcome(True, nis, dof, y)

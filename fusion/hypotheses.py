@@ -209,11 +209,11 @@ class HypothesisBank:
             h.tracker.on_odometry(t, x, y, theta, unmeasured)
 
     def correct_odometry(self, t: float, pose: NDArray[np.float64], since: float,
-                         step_cov: NDArray[np.float64]) -> None:
+                         step_cov: NDArray[np.float64], step_scale: NDArray[np.float64]) -> None:
         """A corrected odometry pose the localizer's filter took (scan odometry): the same for
         every hypothesis's filter (:meth:`fusion.tracker.PoseTracker.correct_odometry`)."""
         for h in self.hypotheses:
-            h.tracker.correct_odometry(t, pose, since, step_cov)
+            h.tracker.correct_odometry(t, pose, since, step_cov, step_scale)
 
     def step(self, t: float, odom: NDArray[np.float64], points: NDArray[np.float64],
              hough: HoughConfig, least_fit: float | None) -> BankVerdict:

@@ -185,6 +185,7 @@ class Localizer:
         if self._calibrate is not None:
             if learner is not None:
                 self._calibrate.translation_scale = learner.value
+                self.tracker.motion.scale_variance = (learner.sigma / learner.value) ** 2
             x, y, theta = self._calibrate(x, y, theta)
         if self.scan_odometry is not None and math.isfinite(x + y + theta):
             x, y, theta = self.scan_odometry.on_wheels(x, y, theta, unmeasured, t)
@@ -342,9 +343,9 @@ class Localizer:
         correction = scan_odometry.match(t, points)
         if correction is not None:
             if self.tracker.correct_odometry(t, correction.pose, correction.since,
-                                             correction.step_cov):
+                                             correction.step_cov, correction.step_scale):
                 self.manager.correct_odometry(t, correction.pose, correction.since,
-                                              correction.step_cov)
+                                              correction.step_cov, correction.step_scale)
                 scan_odometry.commit(correction)
                 self.logger.log_odometry(t, correction.pose)  # the odometry path shows it
             else:

@@ -109,6 +109,11 @@ class OdometryMotionModel:
 
     def __init__(self, config: OdometryMotionConfig | None = None) -> None:
         self.config = config or OdometryMotionConfig()
+        self.scale_variance = 0.0
+        """σ_e²: the variance of the calibrated wheels' remaining scale error (their true
+        distance is (1 + e) times the calibrated one), which the filter carries as a systematic
+        error of the path (:class:`fusion.ekf.PoseEKF`); 0 when the scale is taken as known.
+        The noise of an increment (:meth:`noise`) is the wheels' random error only."""
 
     def noise(self, delta: Pose) -> NDArray[np.float64]:
         """Q: the 3×3 covariance of the increment δ = (dx, dy, dθ), in the robot frame.
@@ -181,17 +186,21 @@ class OdometryMotionModel:
 
 
 def compose_increments(
-    steps: NDArray[np.float64], covs: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """One increment Δ = δ₁ ⊕ δ₂ ⊕ … ⊕ δₘ (robot frame at the first) and its covariance, from
-    m increments ``steps`` (m×3) with covariances ``covs`` (m×3×3), independent of each other.
+    steps: NDArray[np.float64], covs: NDArray[np.float64],
+    scales: NDArray[np.float64] | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """One increment Δ = δ₁ ⊕ δ₂ ⊕ … ⊕ δₘ (robot frame at the first), its covariance and its
+    sensitivity to the wheels' scale error, from m increments ``steps`` (m×3) with covariances
+    ``covs`` (m×3×3), independent of each other, and sensitivities ``scales`` (m×3, ∂δ_k/∂e;
+    None: each step's own translation, as a wheel step's).
 
     Predicting once with (Δ, Q_Δ) gives the same state and covariance as predicting m times: ⊕
     is associative, and by the chain rule the m-step Jacobians are those of Δ, so
         F_m⋯F_1 = F(Δ),    F_m⋯F_{k+1} G_k = G(Δ) J_k,    Q_Δ = Σ_k J_k Q_k J_kᵀ,
     where J_k = ∂Δ/∂δ_k = [[R(φ_k), ⊥(Δ_xy − p_k)], [0, 0, 1]], φ_k the heading before step k,
     p_k the position after it and ⊥(v) = (−v_y, v_x): turning at step k swings the rest of the
-    path about p_k. The heading of Δ is not wrapped (the prediction wraps the state's).
+    path about p_k. Likewise ∂Δ/∂e = Σ_k J_k ∂δ_k/∂e. The heading of Δ is not wrapped (the
+    prediction wraps the state's).
     """
     heading = np.concatenate(([0.0], np.cumsum(steps[:-1, 2])))  # φ_k
     c, s = np.cos(heading), np.sin(heading)
@@ -203,4 +212,7 @@ def compose_increments(
     jac[:, 0, 2] = after[:, 1] - total[1]
     jac[:, 1, 2] = total[0] - after[:, 0]
     jac[:, 2, 2] = 1.0
-    return total, (jac @ covs @ jac.transpose(0, 2, 1)).sum(axis=0)
+    if scales is None:
+        scales = np.column_stack((steps[:, 0], steps[:, 1], np.zeros(len(steps))))
+    return (total, (jac @ covs @ jac.transpose(0, 2, 1)).sum(axis=0),
+            (jac @ scales[:, :, None]).sum(axis=0)[:, 0])

@@ -68,6 +68,10 @@ class Node:
     step_q: NDArray[np.float64]  # its covariance
     jump: bool = False  # the step replaced an implausible odometry jump by zero motion
     measurements: list[Measurement] = field(default_factory=list)
+    # with x: the pose's sensitivity to the wheels' scale error (fusion.ekf.PoseEKF.d)
+    d: NDArray[np.float64] = field(default_factory=lambda: ZERO3)
+    # the step's, ∂step/∂e (robot frame); None: its own translation, as the wheels' step
+    step_scale: NDArray[np.float64] | None = None
 
 
 def node_time(node: Node) -> float:
@@ -119,11 +123,13 @@ class PoseHistory:
         # the readings after t keep their steps and noise (a scan-odometry correction's own,
         # too), not their measurements; the first is re-split from t, as ``PoseTracker.apply`` does
         for node in islice(nodes, j + 1, newest + 1):
-            kept.append(Node(node.t, node.odom, None, None, node.step, node.step_q, node.jump))
+            kept.append(Node(node.t, node.odom, None, None, node.step, node.step_q, node.jump,
+                             step_scale=node.step_scale))
         first_after = kept[1] if len(kept) > 1 else None
         if first_after is not None and not first_after.jump and nodes[j].t != t:
             first_after.step = increment(odom, first_after.odom)
             first_after.step_q = self.motion.noise(first_after.step)
+            first_after.step_scale = None
         return kept, None
 
     def _split(
@@ -176,19 +182,29 @@ class PoseHistory:
         # The engine never modifies these arrays in place (filterpy assigns new ones), so the
         # node's arrays can be handed over without copies.
         assert node.x is not None and node.p is not None  # only computed nodes are loaded
-        self._ekf.x, self._ekf.P = node.x, node.p
+        self._ekf.x, self._ekf.P, self._ekf.d = node.x, node.p, node.d
+
+    def _store(self, node: Node) -> None:
+        """The engine's estimate becomes the node's."""
+        node.x, node.p, node.d = self._ekf.x, self._ekf.P, self._ekf.d
+
+    def _predict(self, step: NDArray[np.float64], q: NDArray[np.float64],
+                 step_scale: NDArray[np.float64] | None = None) -> None:
+        """The loaded engine predicted with one step, uncertain by the wheels' scale too
+        (``motion.scale_variance``) as far as it depends on them (``step_scale``)."""
+        self._ekf.predict_odometry(step, q, step_scale, self.motion.scale_variance)
 
     def _propagate(self, prev: Node, node: Node) -> None:
         self._load(prev)
-        self._ekf.predict_odometry(node.step, node.step_q)
-        node.x, node.p = self._ekf.x, self._ekf.P
+        self._predict(node.step, node.step_q, node.step_scale)
+        self._store(node)
 
     def _attach(self, node: Node, meas: Measurement) -> UpdateOutcome:
         """Update the loaded engine at ``node`` with ``meas``, store the result and count it."""
         outcome = self._update(meas)
         if outcome.status != ScanStatus.INVALID:
             node.measurements.append(meas)
-        node.x, node.p = self._ekf.x, self._ekf.P
+        self._store(node)
         return outcome
 
     def _update(self, meas: Measurement) -> UpdateOutcome:
@@ -231,15 +247,16 @@ class PoseHistory:
             if node.measurements or i == j:
                 self._load(nodes[start])
                 if i == start + 1:
-                    self._ekf.predict_odometry(node.step, node.step_q)
+                    self._predict(node.step, node.step_q, node.step_scale)
                 else:
                     stretch = [nodes[k] for k in range(start + 1, i + 1)]
-                    self._ekf.predict_odometry(*compose_increments(
+                    self._predict(*compose_increments(
                         np.array([n.step for n in stretch]),
-                        np.array([n.step_q for n in stretch])))
+                        np.array([n.step_q for n in stretch]),
+                        np.array([_step_scale(n) for n in stretch])))
                 for meas in node.measurements:
                     self._ekf.update_pose(meas.z, meas.r, meas.basis)
-                node.x, node.p = self._ekf.x, self._ekf.P
+                self._store(node)
                 start = i
         return nodes[j]
 
@@ -315,6 +332,13 @@ class PoseHistory:
             if not _orthonormal(np.ascontiguousarray(basis), 1e-6):
                 raise ValueError("basis columns must be orthonormal")
         return Measurement(z, r, basis)
+
+
+def _step_scale(node: Node) -> NDArray[np.float64]:
+    """∂step/∂e of a node's step (:attr:`Node.step_scale`)."""
+    if node.step_scale is not None:
+        return node.step_scale
+    return np.array([node.step[0], node.step[1], 0.0])
 
 
 @njit

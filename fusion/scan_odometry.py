@@ -99,6 +99,7 @@ class Correction:
     pose: NDArray[np.float64]
     since: float  # the time of the reference scan
     step_cov: NDArray[np.float64]  # covariance of the corrected increment since then
+    step_scale: NDArray[np.float64]  # its sensitivity to the wheels' scale error, ∂step/∂e
     points: NDArray[np.float64]
     wheels: NDArray[np.float64]  # the wheels' pose at the scan's time, which it corrects
 
@@ -188,8 +189,9 @@ class ScanOdometry:
             self.skip(t, points)
             return None
         self.matched += 1
-        step, cov = fused
-        return Correction(t, compose(self._anchor, step), self._time, cov, points, wheels)
+        step, cov, scale = fused
+        return Correction(t, compose(self._anchor, step), self._time, cov, scale, points,
+                          wheels)
 
     def _wheels_at(self, t: float) -> NDArray[np.float64]:
         """The wheels' pose at the scan's time t. A scan falls between two wheel readings, and
@@ -291,10 +293,12 @@ class ScanOdometry:
                    motion.max_turn_rate * interval)
 
     def _fuse(self, t: float, wheel_step: NDArray[np.float64], icp: IcpResult | None
-              ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]] | None:
         """δ = Q (Q_w⁻¹ δ_w + Q_s⁻¹ δ_s) with Q = (Q_w⁻¹ + Q_s⁻¹)⁻¹, the information-weighted
-        increment and its covariance, for the scan at time ``t``; None when the match is
-        unusable or too far from the wheels to be believed."""
+        increment, its covariance and its sensitivity to the wheels' scale error,
+        ∂δ/∂e = Q Q_w⁻¹ (δ_w,x, δ_w,y, 0) (the wheels count as far as they are weighted), for
+        the scan at time ``t``; None when the match is unusable or too far from the wheels to
+        be believed."""
         c = self.config
         if icp is None or icp.overlap < c.min_overlap:
             return None
@@ -348,7 +352,8 @@ class ScanOdometry:
         scan_info = np.linalg.inv(scan_cov)
         cov = np.linalg.inv(wheel_info + scan_info)
         cov = 0.5 * (cov + cov.T)
-        return cov @ (wheel_info @ wheel_step + scan_info @ matched), cov
+        scale = cov @ wheel_info @ np.array((wheel_step[0], wheel_step[1], 0.0))
+        return cov @ (wheel_info @ wheel_step + scan_info @ matched), cov, scale
 
 
 _warmed_up = False

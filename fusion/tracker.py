@@ -126,7 +126,7 @@ class PoseTracker(PoseHistory):
         else:
             _, step, q = self._split(node, self._nodes[j + 1], t)
         self._load(node)
-        self._ekf.predict_odometry(step, q)
+        self._predict(step, q)
         return self._ekf.x.copy(), self._ekf.P.copy()
 
     # ---------------------------------------------------------------------------- odometry
@@ -211,16 +211,18 @@ class PoseTracker(PoseHistory):
         return True
 
     def correct_odometry(self, t: float, pose: ArrayLike, since: float | None = None,
-                         step_cov: ArrayLike | None = None) -> bool:
+                         step_cov: ArrayLike | None = None,
+                         step_scale: ArrayLike | None = None) -> bool:
         """A corrected odometry pose at t (scan matching measured the motion the wheels
         misreported): it replaces the newest reading when taken at its time, or follows it as
         a new reading; later readings must come in the corrected frame. Not a jump, whatever
         its size: the correction is bounded by its own checks.
 
         ``since``, ``step_cov``: the correction measured the whole motion since the reading at
-        ``since``, with this covariance; the readings in between are then merged into one step
-        with that noise (unless measurements were taken there: the step keeps the motion
-        model's noise). False, and nothing changed, when t is older than the newest reading,
+        ``since``, with this covariance (and ``step_scale``, its sensitivity to the wheels'
+        scale error: None, that of a wheel step); the readings in between are then merged into
+        one step with that noise (unless measurements were taken there: the step keeps the
+        motion model's noise). False, and nothing changed, when t is older than the newest reading,
         measurements wait after it, or the pose is not finite."""
         odom = np.array(pose, dtype=float).reshape(3)
         if not (self._nodes and self._tail == 0 and self._before is None
@@ -244,10 +246,11 @@ class PoseTracker(PoseHistory):
                 nodes.pop()
             step = increment(nodes[start].odom, odom)
             q = np.array(step_cov, dtype=float).reshape(3, 3)
+            scale = None if step_scale is None else np.array(step_scale, dtype=float).reshape(3)
         else:
             step = increment(nodes[-1].odom, odom)
-            q = self.motion.noise(step)
-        nodes.append(Node(t, odom, None, None, step, q))
+            q, scale = self.motion.noise(step), None
+        nodes.append(Node(t, odom, None, None, step, q, step_scale=scale))
         self._trim()
         return True
 
@@ -307,7 +310,7 @@ class PoseTracker(PoseHistory):
         if meas is None:
             return UpdateOutcome(False, 0.0, 0, status=ScanStatus.INVALID)
         if not self._nodes:
-            self._ekf.x, self._ekf.P = self._x, self._p
+            self._ekf.x, self._ekf.P, self._ekf.d = self._x, self._p, ZERO3
             outcome = self._update(meas)
             self._x, self._p = self._ekf.x, self._ekf.P
             return outcome
@@ -331,8 +334,8 @@ class PoseTracker(PoseHistory):
         odom, step, q = self._split(node, nxt, t)
         if not nxt.jump:  # a jump stays a jump: its zero step and wide noise are kept
             nxt.step = increment(odom, nxt.odom)
-            nxt.step_q = self.motion.noise(nxt.step)
-        inserted = Node(t, odom, node.x, node.p, step, q)
+            nxt.step_q, nxt.step_scale = self.motion.noise(nxt.step), None
+        inserted = Node(t, odom, node.x, node.p, step, q, d=node.d)
         self._propagate(node, inserted)
         outcome = self._attach(inserted, meas)
         self._nodes.insert(j + 1, inserted)
@@ -394,6 +397,7 @@ class PoseTracker(PoseHistory):
         (pose, cov) (a followed hypothesis, as :meth:`reset` would place it)."""
         other = PoseTracker(self._x, self._p, self.motion.config, self.history_seconds,
                             self._gate_prob, self.delayed_updates)
+        other.motion = self.motion  # the same wheels: their scale's uncertainty is shared
         if self._nodes:
             x, p = checked_state(pose, cov)
             other._nodes, other._before = self._restarted(x, p, t)

@@ -20,8 +20,10 @@ between the readings at the two fixes, observe
     m = s·w + v,
 
 v the fixes' noise along the chord plus the wheels' random noise over the path
-(``wheel_noise``² per metre: the motion model's α₃ is wider, as it must also cover the scale
-error this removes). The wheels' path length is used, not their chord: wheels whose radii
+(``wheel_noise``² per metre: the motion model's α₃ is wider, as it must cover any robot's
+wheels). The estimate's σ (:attr:`WheelScaleLearner.sigma`) is the filter's uncertainty of
+the scale: it carries the scale's remaining error as a drift of the path
+(:class:`fusion.ekf.PoseEKF`). The wheels' path length is used, not their chord: wheels whose radii
 differ report a straight path as an arc, whose chord is shorter, but not its length. The length
 is summed over chords of ``_SEGMENT``: summed reading by reading, the readings' own jitter
 (millimetres across the path between readings millimetres apart) would lengthen it by per
@@ -111,8 +113,11 @@ class WheelScaleLearner:
 
     @property
     def sigma(self) -> float:
-        """The estimate's nominal standard error, 1/√(Σ weights) of the chords kept and the
-        prior, widened by 1.25 for the median that chose which of them are averaged."""
+        """The estimate's nominal standard error: the prior's own while the estimate is the
+        prior; then 1/√(Σ weights) of the chords kept and the prior, widened by 1.25 for the
+        median that chose which of them are averaged."""
+        if self.updates < 2 * _LEAST_PAIRS:
+            return 1.0 / math.sqrt(self._prior[1])
         total = self._prior[1] + sum(weight for _, weight in self._chords)
         return _MEDIAN_EFFICIENCY / math.sqrt(total)
 

@@ -211,6 +211,120 @@ def test_one_prediction_with_composed_increments_equals_one_per_increment(seed, 
     np.testing.assert_allclose(at_once.P, one_by_one.P, rtol=1e-10, atol=1e-14)
 
 
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), m=st.integers(1, 12))
+def test_composed_increments_carry_the_wheels_scale_as_each_step_does(seed, m):
+    """With a scale error in the prediction (and steps that depend on the wheels in part, as a
+    scan-matched one does), one composed prediction is still the same as m predictions."""
+    rng = np.random.default_rng(seed)
+    model = OdometryMotionModel()
+    steps = rng.normal(0.0, [0.1, 0.03, 0.3], (m, 3))
+    covs = np.array([model.noise(step) for step in steps])
+    scales = steps * rng.uniform(0.0, 1.0, (m, 3)) * (1.0, 1.0, 0.0)
+    a = rng.normal(0.0, 0.2, (3, 3))
+    start, p = rng.normal(0.0, [5.0, 5.0, 3.0]), a @ a.T + 1e-2 * np.eye(3)
+    one_by_one, at_once = PoseEKF(start, p), PoseEKF(start, p)
+    d0 = rng.normal(0.0, 0.5, 3)
+    one_by_one.d = at_once.d = d0
+    variance = 0.03**2
+    for step, cov, scale in zip(steps, covs, scales, strict=True):
+        one_by_one.predict_odometry(step, cov, scale, variance)
+    at_once.predict_odometry(*compose_increments(steps, covs, scales), variance)
+    np.testing.assert_allclose(at_once.d, one_by_one.d, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(at_once.P, one_by_one.P, rtol=1e-10, atol=1e-14)
+
+
+def test_a_straight_path_grows_the_scale_error_with_its_length():
+    """Along a straight path of L metres, a scale error of σ_e moves the pose by σ_e·L: the
+    variance along it is the wheels' random walk plus (σ_e L)², not linear in L."""
+    sigma = 0.02
+    tracker = PoseTracker(np.zeros(3), np.diag([1e-6, 1e-6, 1e-8]))
+    tracker.motion.scale_variance = sigma**2
+    drive(tracker, (0.5, 0.0), 20.0, odom0=np.zeros(3))  # 10 m east
+    random_walk = PoseTracker(np.zeros(3), np.diag([1e-6, 1e-6, 1e-8]))
+    drive(random_walk, (0.5, 0.0), 20.0, odom0=np.zeros(3))
+    extra = tracker.cov[0, 0] - random_walk.cov[0, 0]
+    assert extra == pytest.approx((sigma * 10.0) ** 2, rel=1e-6)
+    assert tracker.cov[1, 1] == pytest.approx(random_walk.cov[1, 1], rel=1e-9)  # across: none
+    np.testing.assert_allclose(tracker._state(-1)[0], random_walk.pose, atol=1e-12)
+
+
+def test_a_fix_of_the_whole_pose_ends_the_scale_errors_drift_and_one_across_does_not():
+    """Fixed after 10 m, then 1 m further: across the path only, the scale's share of the
+    variance along it is (σ_e·11 m)²; fixed whole, (σ_e·1 m)²."""
+    sigma, fix = 0.02, np.diag([1e-8, 1e-8, 1e-10])
+
+    def along_variance(basis: np.ndarray | None, scale_variance: float) -> float:
+        tracker = PoseTracker(np.zeros(3), np.diag([1e-6, 1e-6, 1e-8]))
+        tracker.motion.scale_variance = scale_variance
+        t, odom = drive(tracker, (0.5, 0.0), 20.0, odom0=np.zeros(3))
+        assert tracker.apply(t, tracker.pose, fix, basis).accepted
+        drive(tracker, (0.5, 0.0), 2.0, t0=t, odom0=odom)
+        return float(tracker.cov[0, 0])
+
+    for basis, length in ((np.eye(3)[:, 1:], 11.0), (None, 1.0)):
+        extra = along_variance(basis, sigma**2) - along_variance(basis, 0.0)
+        assert extra == pytest.approx((sigma * length) ** 2, rel=0.01)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_the_pose_and_the_scale_error_keep_a_joint_covariance(seed):
+    """[[P, σ_e² d], [σ_e² dᵀ, σ_e²]] is the covariance of (pose, e) through any predictions
+    and updates, full or partial (Schmidt: e itself is never updated)."""
+    rng = np.random.default_rng(seed)
+    model = OdometryMotionModel()
+    variance = rng.uniform(1e-6, 0.01)
+    ekf = PoseEKF(rng.normal(size=3), np.diag(rng.uniform(1e-6, 1.0, 3)), gate_prob=None)
+    for _ in range(60):
+        step = rng.normal(0.0, [0.05, 0.01, 0.1])
+        ekf.predict_odometry(step, model.noise(step), step * (rng.uniform(), rng.uniform(), 0.0),
+                             variance)
+        if rng.random() < 0.4:
+            a = rng.normal(size=(3, 3)) * rng.uniform(1e-4, 1.0)
+            k = int(rng.integers(1, 4))
+            basis = np.linalg.qr(rng.normal(size=(3, 3)))[0][:, :k]
+            ekf.update_pose(ekf.x + rng.normal(0.0, 0.1, 3), a @ a.T + 1e-10 * np.eye(3), basis)
+        joint = np.zeros((4, 4))
+        joint[:3, :3], joint[:3, 3], joint[3, :3] = ekf.P, variance * ekf.d, variance * ekf.d
+        joint[3, 3] = variance
+        assert np.linalg.eigvalsh(joint).min() > -1e-9 * np.abs(joint).max()
+
+
+@pytest.mark.parametrize("carried", [True, False])
+def test_monte_carlo_nees_with_a_wheel_scale_error_along_a_corridor(carried):
+    """Wheels whose scale is off by e ~ N(0, σ_e²), fixes across a corridor only: with the
+    scale carried the filter's covariance covers the error (NEES in the 95 % band); without it
+    the filter is overconfident along the corridor."""
+    runs, steps, dt, sigma = 60, 200, 0.1, 0.03
+    model = OdometryMotionModel()
+    r = np.diag([0.02**2, 0.02**2, 0.01**2])
+    across = np.eye(3)[:, 1:]
+    rng = np.random.default_rng(7)
+    nees = np.zeros(runs)
+    for run in range(runs):
+        truth = np.zeros(3)
+        tracker = PoseTracker(truth + rng.multivariate_normal(np.zeros(3), P0), P0, gate_prob=None)
+        tracker.motion.scale_variance = sigma**2 if carried else 0.0
+        e_scale = rng.normal(0.0, sigma)
+        odom = ODOM_ORIGIN.copy()
+        tracker.on_odometry(0.0, *odom)
+        for k in range(steps):
+            nominal = np.array([0.05, 0.0, 0.0])
+            w = rng.multivariate_normal(np.zeros(3), model.noise(nominal))
+            truth = compose(truth, nominal * (1.0 + e_scale, 1.0, 1.0) + w)
+            odom = compose(odom, nominal)
+            tracker.on_odometry((k + 1) * dt, *odom)
+            if k % 10 == 9:
+                z = truth + rng.multivariate_normal(np.zeros(3), r)
+                tracker.apply((k + 1) * dt, z, r, across)
+        e = tracker.pose - truth
+        e[2] = wrap_angle(e[2])
+        nees[run] = e @ np.linalg.solve(tracker.cov, e)
+    lo, hi = chi2.ppf([0.025, 0.975], 3 * runs) / runs
+    assert (lo < nees.mean() < hi) == carried
+
+
 def test_estimates_asked_for_rarely_equal_those_asked_for_at_every_reading():
     rng = np.random.default_rng(8)
     odometry = _odometry_stream(rng)

@@ -156,9 +156,11 @@ def test_one_pair_of_chords_does_not_move_the_scale() -> None:
     learner = WheelScaleLearner(CONFIG, prior=1.0)
     drive(learner, 1.07, np.random.default_rng(5), metres=9.0)
     assert learner.updates == 2 and learner.value == 1.0
+    assert learner.sigma == CONFIG.sigma  # the prior's, as the estimate is the prior
     drive_on = WheelScaleLearner(CONFIG, prior=1.0)
     drive(drive_on, 1.07, np.random.default_rng(5), metres=12.0)
     assert drive_on.updates == 4 and drive_on.value == pytest.approx(1.07, abs=0.01)
+    assert drive_on.sigma < 0.2 * (CONFIG.sigma or 0.0)
 
 
 def test_a_pair_wrong_the_same_way_is_outvoted_by_the_next() -> None:

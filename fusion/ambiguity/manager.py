@@ -111,11 +111,12 @@ class AmbiguityManager:
         if bank is not None:
             bank.on_odometry(t, x, y, theta, unmeasured)
 
-    def correct_odometry(self, t: float, pose: NDArray, since: float, step_cov: NDArray) -> None:
+    def correct_odometry(self, t: float, pose: NDArray, since: float, step_cov: NDArray,
+                         step_scale: NDArray) -> None:
         """A corrected odometry pose the localizer's filter took: the followed poses take it."""
         bank = self.relocalization.bank
         if bank is not None:
-            bank.correct_odometry(t, pose, since, step_cov)
+            bank.correct_odometry(t, pose, since, step_cov, step_scale)
 
     # ------------------------------------------------------------------ tracking
     def re_search(self, scan: TrackingScan, status: ScanStatus, verdict: Verdict,

@@ -13,7 +13,8 @@ class WheelScaleConfig(BaseModel):
     sigma: float | None = Field(
         0.05, gt=0, description="how far the wheels' true distance per reported metre may be "
         "from `filter.motion.translation_scale`, σ (tyre wear, load, a wrong radius: a few per "
-        "cent); None: not learned, the configured scale is used as it is")
+        "cent; the filter carries it as a drift of the path until the scale is learned); None: not "
+        "learned, the configured scale is used as it is and taken as exact")
     baseline: float = Field(2.0, gt=0, description="m: the least distance between two full "
                             "fixes that observe the scale; a few fixes' errors (cm) over it "
                             "make one observation good to a per cent or two")
