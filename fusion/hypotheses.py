@@ -355,12 +355,14 @@ class HypothesisBank:
         that fits f, a scan being worth n = ``independent_points`` observations; z is the
         standard normal quantile at ``accept_probability``, so that a right pose's mean falls
         below the bound f − z σ with probability 1 − ``accept_probability``. Tracking's fits
-        come from the places it went through; a right pose elsewhere sees other clutter."""
+        come from the places it went through; a right pose elsewhere sees other clutter. A
+        pose weighed fewer times is read on the fits it has, their noise the larger."""
         if least_fit is None:
             return math.inf
         c = self.config
         f = min(max(least_fit, 0.0), 1.0)
-        sigma = math.sqrt(f * (1.0 - f) / (c.independent_points * c.min_scans))
+        scans = max(1, min(len(h.fits), c.min_scans))
+        sigma = math.sqrt(f * (1.0 - f) / (c.independent_points * scans))
         gap = self._recent_fit(h) - least_fit
         if sigma <= 0.0:
             return math.inf if gap >= 0.0 else -math.inf
@@ -376,13 +378,15 @@ class HypothesisBank:
         (0 before), times the chance Φ(x) that its fits pass the verdict's test
         (:meth:`_fit_margin`): a weight is a share among the poses followed, and when none of
         them fits as a right pose does (a place the map lacks, where the rivals fit worse
-        still), the leader's share of 1 says nothing of the robot. A leader with fewer than
-        ``min_scans`` fits is not tested yet: its weight stands."""
+        still), the leader's share of 1 says nothing of the robot. A leader not weighed yet
+        is 0: its weight is the match's score and the prior's, and after a kidnap the prior
+        favours the pose tracking carried, which is wrong; one weighed fewer than
+        ``min_scans`` times is read on the fits it has."""
         if not self.hypotheses or not self._contested:
             return 0.0
         leader = self.leader
-        if leader.updates < self.config.min_scans:
-            return float(leader.weight)
+        if not leader.fits:
+            return 0.0
         return float(leader.weight) * NormalDist().cdf(self._fit_margin(leader, least_fit))
 
     def _verdict(self, least_fit: float | None) -> BankVerdict:

@@ -10,7 +10,8 @@ event, *confident-wrong*. The probability is the product of two factors:
   decision and the probability read the same evidence. While hypotheses are followed, the
   leader's weight (its posterior among them) once a global match has proposed rivals to it,
   times the chance that its fits pass the test the bank takes a pose by (a share among poses
-  that all fit poorly says nothing: ``HypothesisBank.leader_probability``); before that, and
+  that all fit poorly says nothing, and one not weighed yet is 0:
+  ``HypothesisBank.leader_probability``); before that, and
   while collecting views with no hypothesis or lost: 0 (``AmbiguityManager.mode_probability``).
 * **the spread** — the Gaussian mass ``P(‖e_xy‖ ≤ r) · P(|e_θ| ≤ h)`` of the filter's
   covariance, position and heading taken as independent (their correlation is small next to the

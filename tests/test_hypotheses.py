@@ -214,15 +214,20 @@ def test_the_leader_of_poses_that_all_fit_poorly_is_not_reported_likely(office) 
     that. A leader that fits 0.3 holds nearly all the weight and is reported at a quarter of it,
     Φ((0.3 − 0.45)/σ + 1.645) = 0.245 (in a room the map lacks, a drifting belief outweighs
     rivals that fit worse still); one that fits 0.8 at its weight; one at the verdict's bound
-    (0.45 − 1.645 σ) at half of it; a leader weighed once is not tested yet, and before a
-    global match has proposed rivals the probability is 0."""
-    z_sigma = 1.645 * math.sqrt(0.45 * 0.55 / (30 * 2))
-    for fit, expected in ((0.3, 0.245), (0.8, 1.0), (0.45 - z_sigma, 0.5)):
+    (0.45 − 1.645 σ) at half of it. A leader not weighed yet is 0 (its weight is the match's
+    score and the prior's); one weighed once is read on that fit, whose σ is √2 times larger;
+    before a global match has proposed rivals the probability is 0."""
+    sigma = math.sqrt(0.45 * 0.55 / 30)  # of one scan's fit
+    z_sigma = 1.645 * sigma / math.sqrt(2)
+    for fit, expected, once in ((0.3, 0.245, 0.497), (0.8, 1.0, 1.0),
+                                (0.45 - z_sigma, 0.5, 0.685)):
         b = bank(office, lambda poses, f=fit: [f, 0.05][: len(poses)])
         assert b.leader_probability(0.45) == 0.0  # nothing followed
         b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+        assert b.leader_probability(0.45) == 0.0  # not weighed yet
         weigh(b, odom=(STEP, 0.0, 0.0), least_fit=0.45)
-        assert b.leader_probability(0.45) == pytest.approx(b.leader.weight)  # one fit: untested
+        got = b.leader_probability(0.45) / b.leader.weight
+        assert got == pytest.approx(once, abs=2e-3), fit  # one fit
         weigh(b, odom=(2 * STEP, 0.0, 0.0), least_fit=0.45)
         assert b.leader.weight > 0.99
         got = b.leader_probability(0.45) / b.leader.weight

@@ -252,7 +252,7 @@ class AmbiguityManager:
         tracking up gathered since the last usable fix; while hypotheses are followed, the
         leader's weight times the chance that its fits pass the bank's test
         (:meth:`HypothesisBank.leader_probability`), 0 before a global match has proposed
-        rivals to it, while collecting views with none, or lost."""
+        rivals to it or before it was weighed, while collecting views with none, or lost."""
         if self.state is State.TRACKING:
             return 1.0 - self.watch.evidence_against
         bank = self.relocalization.bank
