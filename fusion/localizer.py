@@ -33,6 +33,7 @@ from fusion.status import ScanStatus, State
 from fusion.tracker import PoseTracker
 from fusion.tracker import warm_up as warm_up_filter
 from fusion.visualize import Logger, NullLogger
+from fusion.wheel_noise import WheelNoiseLearner
 from fusion.wheel_scale import WheelScaleLearner
 from houghloc import ScanCorrection, SegmentMap, localize_scan
 from houghloc.geometry import ranges_to_points, transform_points, within_range
@@ -75,8 +76,13 @@ class Localizer:
         self._calibrate = (None if calibration.identity and self.wheel_scale is None
                            else calibration)
         self._scan_odometry_sensor = self.config.scan_odometry_sensor
+        # the wheels' random noise learned from the scan matches (None: as configured)
+        self.wheel_noise = (None if self._scan_odometry_sensor is None
+                            or not fc.wheel_noise.enabled
+                            else WheelNoiseLearner(fc.wheel_noise, fc.motion))
         self.scan_odometry = (None if self._scan_odometry_sensor is None else
-                              ScanOdometry(self.config.scan_odometry, self.tracker.motion))
+                              ScanOdometry(self.config.scan_odometry, self.tracker.motion,
+                                           self.wheel_noise))
         if self.scan_odometry is not None:
             warm_up_scan_matching()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
@@ -132,6 +138,8 @@ class Localizer:
                                "localized": self.localized, "ambiguity": self.manager.summary()}
         if self.wheel_scale is not None:
             doc["wheel_scale"] = self.wheel_scale.summary()
+        if self.wheel_noise is not None:
+            doc["wheel_noise"] = self.wheel_noise.summary()
         if self.scan_odometry is not None:
             doc["scan_odometry"] = {"matched": self.scan_odometry.matched,
                                     "unmatched": self.scan_odometry.unmatched}
@@ -341,6 +349,8 @@ class Localizer:
         scan_odometry = self.scan_odometry
         assert scan_odometry is not None  # called only with scan odometry on
         correction = scan_odometry.match(t, points)
+        if self.wheel_noise is not None:
+            self.tracker.motion.translation_factor = self.wheel_noise.factor
         if correction is not None:
             if self.tracker.correct_odometry(t, correction.pose, correction.since,
                                              correction.step_cov, correction.step_scale):

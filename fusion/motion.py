@@ -114,9 +114,15 @@ class OdometryMotionModel:
         distance is (1 + e) times the calibrated one), which the filter carries as a systematic
         error of the path (:class:`fusion.ekf.PoseEKF`); 0 when the scale is taken as known.
         The noise of an increment (:meth:`noise`) is the wheels' random error only."""
+        self.translation_factor = 1.0
+        """λ: the share of the configured translation noise along the direction of travel
+        (α₃² and floor_xy²'s share) the wheels show, learned from scan matches
+        (:mod:`fusion.wheel_noise`); 1: as configured"""
 
-    def noise(self, delta: Pose) -> NDArray[np.float64]:
-        """Q: the 3×3 covariance of the increment δ = (dx, dy, dθ), in the robot frame.
+    def noise(self, delta: Pose, translation_factor: float | None = None) -> NDArray[np.float64]:
+        """Q: the 3×3 covariance of the increment δ = (dx, dy, dθ), in the robot frame, with
+        the translation noise (α₃², floor_xy²) scaled by ``translation_factor`` (None: the
+        learned :attr:`translation_factor`).
 
         δ is decomposed into (rot1, trans, rot2), each gets an independent variance from the
         α's (linear in the amounts), and Q = J diag(σ²) Jᵀ with J = ∂δ/∂(rot1, trans, rot2),
@@ -124,6 +130,7 @@ class OdometryMotionModel:
         heading (not as a half turn, which would create a large spurious rotation noise).
         """
         c = self.config
+        factor = self.translation_factor if translation_factor is None else translation_factor
         dx, dy, dth = float(delta[0]), float(delta[1]), float(delta[2])
         trans = math.hypot(dx, dy)
         if trans < _ZERO_MOTION and abs(dth) < _ZERO_MOTION:
@@ -137,7 +144,7 @@ class OdometryMotionModel:
         rot2 = wrap_scalar(dth - rot1)
         # Translation's heading noise is split over the two rotations: α₂² per metre in total.
         var_rot1 = c.alpha1**2 * abs(rot1) + 0.5 * c.alpha2**2 * trans
-        var_trans = c.alpha3**2 * trans + c.alpha4**2 * (abs(rot1) + abs(rot2))
+        var_trans = factor * c.alpha3**2 * trans + c.alpha4**2 * (abs(rot1) + abs(rot2))
         var_rot2 = c.alpha1**2 * abs(rot2) + 0.5 * c.alpha2**2 * trans
         # Q = J diag(var_rot1, var_trans, var_rot2) Jᵀ, J = ∂(dx, dy, dθ)/∂(rot1, trans, rot2)
         # for dx = t cos r1, dy = t sin r1, dθ = r1 + r2; written out, as this runs per reading.
@@ -145,6 +152,10 @@ class OdometryMotionModel:
         lat_x, lat_y = -signed_trans * sin1, signed_trans * cos1  # ∂(dx, dy)/∂rot1
         amount = trans + abs(dth)
         floor_xy, floor_th = c.floor_xy**2 * amount, c.floor_theta**2 * amount
+        if trans >= c.heading_min_translation:
+            # the learned share is of the noise along the direction of travel, what the scan
+            # matches measure (fusion.wheel_noise); across it the floor stands
+            var_trans += (factor - 1.0) * floor_xy
         qxy = lat_x * lat_y * var_rot1 + cos1 * sin1 * var_trans
         qxt, qyt = lat_x * var_rot1, lat_y * var_rot1
         return np.array(

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from fusion.motion import OdometryMotionModel, increment, interpolate
 from fusion.scan_icp import IcpResult, point_to_line_icp
 from fusion.settings.scan_odometry import ScanOdometryConfig
+from fusion.wheel_noise import WheelNoiseLearner
 from houghloc.geometry import compose, wrap_scalar
 from houghloc.matching import gate_threshold
 
@@ -112,9 +113,12 @@ class ScanOdometry:
     adopts it once the filter has taken it. A scan that is not matched or not committed leaves
     the previous one as the reference for the next."""
 
-    def __init__(self, config: ScanOdometryConfig, motion: OdometryMotionModel) -> None:
+    def __init__(self, config: ScanOdometryConfig, motion: OdometryMotionModel,
+                 wheel_noise: WheelNoiseLearner | None = None) -> None:
         self.config = config
         self.motion = motion
+        self.wheel_noise = wheel_noise
+        """told each good match's gap from the wheels (None: the wheels' noise not learned)"""
         self.matched = 0
         self.unmatched = 0
         self.broke = False
@@ -341,6 +345,7 @@ class ScanOdometry:
                 scan_cov = scan_cov + _UNOBSERVED * np.outer(u, u)
         else:
             self._thin.reset()
+            self._learn_noise(wheel_step, gap, scan_cov)
         if c.robust_quantile is not None:
             # the two disagree beyond their joint noise: the wheels slipped or misreport (a good
             # match does not err by decimetres), so their noise is scaled up until they agree
@@ -354,6 +359,22 @@ class ScanOdometry:
         cov = 0.5 * (cov + cov.T)
         scale = cov @ wheel_info @ np.array((wheel_step[0], wheel_step[1], 0.0))
         return cov @ (wheel_info @ wheel_step + scan_info @ matched), cov, scale
+
+
+    def _learn_noise(self, wheel_step: NDArray[np.float64], gap: NDArray[np.float64],
+                     scan_cov: NDArray[np.float64]) -> None:
+        """A good match (no object moved against the others, several observe its weakest
+        direction) tells the wheel-noise learner its gap from the wheels along their direction,
+        where it observes that direction at least as well as the default wheels do, and the
+        wheels missed no motion."""
+        trans = math.hypot(wheel_step[0], wheel_step[1])
+        if (self.wheel_noise is None or self._unmeasured > 0.0
+                or trans < self.motion.config.heading_min_translation):
+            return
+        u = np.array((wheel_step[0] / trans, wheel_step[1] / trans, 0.0))
+        default = float(u @ self.motion.noise(wheel_step, 1.0) @ u)
+        if float(u @ scan_cov @ u) <= default:
+            self.wheel_noise.observe(float(gap @ u), default)
 
 
 _warmed_up = False

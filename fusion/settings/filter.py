@@ -8,6 +8,7 @@ import math
 from pydantic import BaseModel, ConfigDict, Field
 
 from fusion.settings.motion import OdometryMotionConfig
+from fusion.settings.wheel_noise import WheelNoiseConfig
 from fusion.settings.wheel_scale import WheelScaleConfig
 
 GATE_PROBABILITY = 0.9999
@@ -22,6 +23,7 @@ class FilterConfig(BaseModel):
 
     motion: OdometryMotionConfig = OdometryMotionConfig()
     wheel_scale: WheelScaleConfig = WheelScaleConfig()
+    wheel_noise: WheelNoiseConfig = WheelNoiseConfig()
     initial_sigma_xy: float = Field(0.05, gt=0.0,
                                     description="m; σ in x and y of an initial pose given")
     initial_sigma_theta_deg: float = Field(1.0, gt=0.0,

@@ -1,0 +1,21 @@
+"""The wheel-noise estimator's settings (:mod:`fusion.wheel_noise`)."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class WheelNoiseConfig(BaseModel):
+    """The wheels' random distance noise, learned online from scan matches
+    (:mod:`fusion.wheel_noise`)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    enabled: bool = Field(True, description="learn it (with scan odometry on); off: the motion "
+                          "model's `alpha3` and `floor_xy` as they are")
+    least: float = Field(0.01, ge=0, description="m per √m: the least random distance error "
+                         "the wheels are credited with, however well they agree with the "
+                         "matches (a rolling wheel on a floor: millimetres per metre)")
+    matches: int = Field(200, ge=10, description="the last good matches whose median ratio is "
+                         "the estimate (tens of seconds of driving: a floor or a load changes "
+                         "the wheels' noise more slowly)")
