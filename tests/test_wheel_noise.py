@@ -17,22 +17,26 @@ CONFIG = WheelNoiseConfig()
 LEAST = CONFIG.least**2 / (MOTION.alpha3**2 + MOTION.floor_xy**2)
 
 
-def learned(share: float, seed: int, outliers: float = 0.0) -> WheelNoiseLearner:
-    """A learner told ``CONFIG.matches`` gaps of 5 cm steps whose variance is ``share`` of the
+def learned(share: float, seed: int, outliers: float = 0.0,
+            config: WheelNoiseConfig = CONFIG) -> WheelNoiseLearner:
+    """A learner told ``config.matches`` gaps of 5 cm steps whose variance is ``share`` of the
     default model's, a fraction ``outliers`` of them a person's 10 cm instead."""
     rng = np.random.default_rng(seed)
-    learner = WheelNoiseLearner(CONFIG, MOTION)
+    learner = WheelNoiseLearner(config, MOTION)
     variance = 0.05 * (MOTION.alpha3**2 + MOTION.floor_xy**2)
-    for _ in range(CONFIG.matches):
+    for _ in range(config.matches):
         gap = 0.1 if rng.random() < outliers else rng.normal(0.0, np.sqrt(share * variance))
         learner.observe(gap, variance)
     return learner
 
 
 @settings(max_examples=30, deadline=None)
-@given(share=st.floats(0.1, 0.9), seed=st.integers(0, 10_000))
+@given(share=st.floats(0.1, 0.9), seed=st.integers(0, 2**32 - 1))
 def test_the_wheels_noise_is_found(share: float, seed: int) -> None:
-    assert learned(share, seed).factor == pytest.approx(share, rel=0.35)
+    """Over 2,000 matches the median's relative standard error is about 5 %: within 25 % is
+    five of them. (Over the default 200 it is 16 %, which the tests below allow for.)"""
+    many = WheelNoiseConfig(matches=2000)
+    assert learned(share, seed, config=many).factor == pytest.approx(share, rel=0.25)
 
 
 def test_a_few_people_walking_past_do_not_make_the_wheels_noisy() -> None:
