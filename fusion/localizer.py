@@ -79,7 +79,8 @@ class Localizer:
         # the wheels' random noise learned from the scan matches (None: as configured)
         self.wheel_noise = (None if self._scan_odometry_sensor is None
                             or not fc.wheel_noise.enabled
-                            else WheelNoiseLearner(fc.wheel_noise, fc.motion))
+                            else WheelNoiseLearner(fc.wheel_noise, fc.motion,
+                                                   fc.wheel_scale.wheel_noise))
         self.scan_odometry = (None if self._scan_odometry_sensor is None else
                               ScanOdometry(self.config.scan_odometry, self.tracker.motion,
                                            self.wheel_noise))

@@ -360,7 +360,6 @@ class ScanOdometry:
         scale = cov @ wheel_info @ np.array((wheel_step[0], wheel_step[1], 0.0))
         return cov @ (wheel_info @ wheel_step + scan_info @ matched), cov, scale
 
-
     def _learn_noise(self, wheel_step: NDArray[np.float64], gap: NDArray[np.float64],
                      scan_cov: NDArray[np.float64]) -> None:
         """A good match (no object moved against the others, several observe its weakest

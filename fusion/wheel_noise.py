@@ -15,8 +15,9 @@ and b the match's. Taking b as zero over-states λ by the match's own error, so 
     λ = median(r²/a) / median(χ²₁)
 
 (the median, as people walking past make a few gaps large) errs toward the default, never
-below the wheels' true noise. It is held within [``least``²/(α₃² + floor²), 1]: at most the
-default, at least the least noise a rolling wheel has, and used once ``matches``/4 matches
+below the wheels' true noise. It is held within [w²/(α₃² + floor²), 1]: at most the default,
+at least the least noise a rolling wheel has (w, ``filter.wheel_scale.wheel_noise``, the noise
+the scale's learner takes the wheels to have), and used once ``matches``/4 matches
 were seen (:attr:`WheelNoiseLearner.factor`, which scales the translation noise along the
 direction of travel, α₃² and the floor's share, in
 :meth:`fusion.motion.OdometryMotionModel.noise`; across it the floor stands, as the matches do
@@ -42,10 +43,13 @@ class WheelNoiseLearner:
     """Good matches' gaps from the wheels in; the share of the default translation noise the
     wheels show out (``factor``)."""
 
-    def __init__(self, config: WheelNoiseConfig, motion: OdometryMotionConfig) -> None:
+    def __init__(self, config: WheelNoiseConfig, motion: OdometryMotionConfig,
+                 least: float) -> None:
+        """``least``: m per √m, the least random distance error the wheels are credited with,
+        however well they agree with the matches."""
         self.config = config
         default = motion.alpha3**2 + motion.floor_xy**2
-        self._least = min(1.0, config.least**2 / default) if default > 0.0 else 1.0
+        self._least = min(1.0, least**2 / default) if default > 0.0 else 1.0
         self._ratios: deque[float] = deque(maxlen=config.matches)
         self.factor = 1.0
         """λ: the wheels' translation noise variance over the default model's (1 until

@@ -10,11 +10,13 @@ from hypothesis import strategies as st
 from fusion.motion import OdometryMotionModel
 from fusion.settings.motion import OdometryMotionConfig
 from fusion.settings.wheel_noise import WheelNoiseConfig
+from fusion.settings.wheel_scale import WheelScaleConfig
 from fusion.wheel_noise import WheelNoiseLearner
 
 MOTION = OdometryMotionConfig()
 CONFIG = WheelNoiseConfig()
-LEAST = CONFIG.least**2 / (MOTION.alpha3**2 + MOTION.floor_xy**2)
+ROLLING = WheelScaleConfig().wheel_noise  # m per √m: the least the wheels are credited with
+LEAST = ROLLING**2 / (MOTION.alpha3**2 + MOTION.floor_xy**2)
 
 
 def learned(share: float, seed: int, outliers: float = 0.0,
@@ -22,7 +24,7 @@ def learned(share: float, seed: int, outliers: float = 0.0,
     """A learner told ``config.matches`` gaps of 5 cm steps whose variance is ``share`` of the
     default model's, a fraction ``outliers`` of them a person's 10 cm instead."""
     rng = np.random.default_rng(seed)
-    learner = WheelNoiseLearner(config, MOTION)
+    learner = WheelNoiseLearner(config, MOTION, ROLLING)
     variance = 0.05 * (MOTION.alpha3**2 + MOTION.floor_xy**2)
     for _ in range(config.matches):
         gap = 0.1 if rng.random() < outliers else rng.normal(0.0, np.sqrt(share * variance))
@@ -49,7 +51,7 @@ def test_it_is_never_above_the_configured_nor_below_a_rolling_wheels() -> None:
 
 
 def test_the_configured_noise_stands_until_enough_matches_were_seen() -> None:
-    learner = WheelNoiseLearner(CONFIG, MOTION)
+    learner = WheelNoiseLearner(CONFIG, MOTION, ROLLING)
     for _ in range(CONFIG.matches // 4 - 1):
         learner.observe(0.0, 1e-4)
     assert learner.factor == 1.0
@@ -77,7 +79,7 @@ def drive_matched(walls: np.ndarray, share: float, seed: int, scans: int = 60
     from tests.test_scan_odometry import scan_points
 
     rng = np.random.default_rng(seed)
-    learner = WheelNoiseLearner(CONFIG, MOTION)
+    learner = WheelNoiseLearner(CONFIG, MOTION, ROLLING)
     model = OdometryMotionModel(MOTION)
     scan_odometry = ScanOdometry(ScanOdometryConfig(), model, learner)
     step = np.array([0.05, 0.0, 0.0])

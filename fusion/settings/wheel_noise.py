@@ -13,9 +13,6 @@ class WheelNoiseConfig(BaseModel):
 
     enabled: bool = Field(True, description="learn it (with scan odometry on); off: the motion "
                           "model's `alpha3` and `floor_xy` as they are")
-    least: float = Field(0.01, ge=0, description="m per √m: the least random distance error "
-                         "the wheels are credited with, however well they agree with the "
-                         "matches (a rolling wheel on a floor: millimetres per metre)")
     matches: int = Field(200, ge=10, description="the last good matches whose median ratio is "
                          "the estimate (tens of seconds of driving: a floor or a load changes "
                          "the wheels' noise more slowly)")

@@ -20,7 +20,8 @@ class WheelScaleConfig(BaseModel):
                             "make one observation good to a per cent or two")
     wheel_noise: float = Field(0.01, ge=0, description="m per √m: the wheels' random distance "
                                "error (a rolling wheel on a floor: millimetres per metre), "
-                               "without their scale error")
+                               "without their scale error; also the least the learned noise "
+                               "(`filter.wheel_noise`) credits them with")
     max_turn_deg: float = Field(10.0, gt=0, lt=90, description="°: the path between two fixes "
                                 "counts as straight when every full fix on it heads within this "
                                 "of their chord (its length is then within 1.5 % of the chord's, "
