@@ -20,7 +20,11 @@ pose meets too, weighs between them. A wall the scan is seen through onto the wa
 be glass (or a door the map shows closed): that is one fact about the building, not new evidence
 with every scan, so a hypothesis may take it for glass once, at the odds of the prior
 ``glass_probability``, when its points there outweigh that, and sees through it from then on
-(points seen through onto nothing stay evidence against it). Tracking's belief, carried by
+(points seen through onto nothing stay evidence against it). The walls tracking saw through
+before it was given up are glass already for every pose followed from then on
+(:meth:`fusion.ambiguity.fit.ScanFit.learn_glass`): a right pose does not pay for them again,
+where a pose tracking never was at could otherwise lose to one that sees nothing at all.
+Tracking's belief, carried by
 odometry, may be in a room the map lacks, where most points land on nothing: its likelihood allows
 for that (``mapped_probability``), so scans that land on nothing are no evidence against it, as
 they do not give tracking up; a pose a global match proposed claims that the map shows it. ``n`` is
@@ -54,7 +58,7 @@ from statistics import NormalDist
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.settings.hypotheses import RECENT_FITS, HypothesisConfig
+from fusion.settings.hypotheses import RECENT_FITS, HypothesisConfig, glass_points
 from fusion.tracker import PoseTracker
 from houghloc import HoughConfig, localize_scan
 from houghloc.geometry import relative, wrap_scalar
@@ -138,18 +142,24 @@ class HypothesisBank:
     def __init__(self, map: SegmentMap, config: HypothesisConfig,
                  make_tracker: MakeTracker,
                  fit: Callable[[NDArray[np.float64], NDArray[np.float64]], NDArray[np.float64]],
-                 shares: GlassShares) -> None:
+                 shares: GlassShares, known_glass: NDArray[np.bool_] | None = None) -> None:
         """``make_tracker(pose, cov, t)``: a filter whose estimate at time t is the pose, with
         the odometry since; ``fit(poses, points)``: the fraction
         of the points (robot frame) on walls at each of the P×3 poses, what the verdict compares
         with tracking's; ``shares``: the shares of the points on a wall seen directly, through
         a wall and neither at each pose, with the walls it takes for glass
-        (:data:`GlassShares`), what the weights follow (:func:`scan_log_likelihood`)."""
+        (:data:`GlassShares`), what the weights follow (:func:`scan_log_likelihood`);
+        ``known_glass``: per segment of the map, the walls tracking saw through onto the walls
+        beyond (shared, it grows while tracking), which a pose followed from then on has taken
+        for glass already."""
         self.map = map
         self.config = config
         self._make_tracker = make_tracker
         self._fit = fit
         self._shares = shares
+        # walls tracking saw through before (glass is a fact about the building): a pose
+        # followed from now on does not pay for them again
+        self._known_glass = known_glass
         self._merge_gate = gate_threshold(config.merge_probability, 3)
         self._z_accept = NormalDist().inv_cdf(config.accept_probability)
         self.hypotheses: list[Hypothesis] = []
@@ -194,8 +204,10 @@ class HypothesisBank:
             if any(self._same_pose(pose, cov, h) for h in followed):
                 continue
             tracker = self._make_tracker(pose, cov, t)
+            glass = (np.zeros(len(self.map.starts), dtype=bool) if self._known_glass is None
+                     else self._known_glass.copy())
             self.hypotheses.append(Hypothesis(tracker, scale * max(score * prior, 1e-6), origin,
-                                              np.zeros(len(self.map.starts), dtype=bool)))
+                                              glass))
         if self._last_update is None:
             self._last_update = np.asarray(odom, float).copy()
         self._merge()
@@ -238,7 +250,7 @@ class HypothesisBank:
         poses = np.array([h.pose for h in self.hypotheses])
         fits = self._fit(poses, points)
         shares, taken = self._shares(poses, points, [h.glass for h in self.hypotheses],
-                                     self._glass_points(len(points)))
+                                     glass_points(self.config, len(points)))
         beliefs = np.array([h.origin == "tracked" for h in self.hypotheses])
         log_l = np.where(beliefs, scan_log_likelihood(shares, self.config, belief=True),
                          scan_log_likelihood(shares, self.config))
@@ -294,17 +306,6 @@ class HypothesisBank:
         weights /= weights.sum()
         for h, w in zip(self.hypotheses, weights, strict=True):
             h.weight = float(w)
-
-    def _glass_points(self, n_points: int) -> int:
-        """The fewest points on walls seen through one wall for which taking that wall for
-        glass explains the scan better, prior included: each such point moves from seen
-        through (p_t = ``through_probability``) to on a wall seen (p_h = ``hit_probability``),
-        worth n / N · log(p_h / p_t) with n = ``independent_points`` of N points, and the wall
-        costs log(1 / ``glass_probability``) once."""
-        c = self.config
-        per_point = c.independent_points / max(n_points, 1) * math.log(
-            c.hit_probability / c.through_probability)
-        return max(1, math.ceil(math.log(1.0 / c.glass_probability) / per_point))
 
     def _moved(self, odom: NDArray[np.float64]) -> bool:
         if self._last_update is None:

@@ -269,6 +269,90 @@ def test_a_wall_taken_for_glass_is_paid_for_once(office) -> None:
     assert not any(other.any() for _, other in calls)
 
 
+def test_a_followed_pose_starts_with_the_glass_tracking_saw(office) -> None:
+    """The scans of the test above, but tracking saw through that wall before it was given up
+    (glass is a fact about the building): both poses start with it, neither takes it again,
+    and their weights stay level, where the pose taking it paid the prior's odds above."""
+    known = np.zeros(len(office.starts), dtype=bool)
+    known[3] = True
+    b = bank(office, lambda poses: [0.7, 0.7][: len(poses)])
+    b._known_glass = known
+    taken_at = []
+
+    def shares(poses, points, glass, glass_points):
+        taken = [np.zeros(0, np.intp) if g[3] else np.array([3]) for g in glass]
+        taken_at.append([len(t) for t in taken])
+        return np.tile([0.7, 0.0, 0.3], (len(poses), 1)), taken
+
+    b._shares = shares
+    b.seed(0.0, np.zeros(3), SPOTS[:2], [COV, COV], [1.0, 1.0])
+    known[5] = True  # learnt later: a pose already followed does not get it
+    for k in (1, 2):
+        weigh(b, odom=(STEP * k, 0.0, 0.0))
+    assert [h.weight for h in b.hypotheses] == pytest.approx([0.5, 0.5])
+    assert taken_at == [[0, 0], [0, 0]]
+    assert not any(h.glass[5] for h in b.hypotheses)
+
+
+def test_tracking_learns_the_walls_it_sees_through_onto_walls_beyond() -> None:
+    """The room below, its front wall glass, seen from an accepted pose: the wall is learnt
+    for glass once enough points lie on the back wall beyond it (as many as make taking it
+    likelier than not), and not from a scan that stops at it. Scans are looked at once per
+    ``update_distance`` travelled: a scan from where the last was looked at teaches nothing."""
+    from fusion.ambiguity.fit import ScanFit
+    from fusion.settings.ambiguity import AmbiguityConfig
+    from fusion.settings.hypotheses import glass_points
+    from fusion.sim.config import LaserConfig
+    from fusion.sim.laser import laser_scan
+    from houghloc import SegmentMap
+    from houghloc.geometry import ranges_to_points
+
+    walls = np.array([[-1, -3, 4, -3], [4, -3, 4, 3], [4, 3, -1, 3], [-1, 3, -1, -3],
+                      [2, -1, 2, 1]], dtype=float)
+    room = SegmentMap(walls[:, :2], walls[:, 2:], name="room")
+    pose = np.zeros(3)
+
+    def points(seen_by_laser: SegmentMap) -> np.ndarray:
+        scan = laser_scan(seen_by_laser, pose, np.random.default_rng(0),
+                          LaserConfig(max_range=10.0))
+        return ranges_to_points(scan.ranges, scan.angles, 10.0, 0.0)
+
+    through = points(SegmentMap(walls[:4, :2], walls[:4, 2:], name="room, no glass"))
+    opaque = points(room)
+    config = AmbiguityConfig()
+    assert config.hypotheses is not None
+    assert glass_points(config.hypotheses, len(through)) < 0.1 * len(through)
+    fit = ScanFit(room, config)
+    fit.learn_glass(pose, opaque, np.zeros(3))
+    assert not fit.glass.any()
+    fit.learn_glass(pose, through, np.zeros(3))  # where the last scan was looked at
+    assert not fit.glass.any()
+    fit.learn_glass(pose, through, np.array([config.hypotheses.update_distance, 0.0, 0.0]))
+    assert np.flatnonzero(fit.glass).tolist() == [4]
+
+
+def test_a_wall_is_learnt_for_glass_only_where_the_points_beyond_lie_on_walls() -> None:
+    """40 points through the room's front wall onto its back wall are glass's evidence: behind
+    glass a scan's points lie on walls as at the right pose (0.7), behind a wall the laser
+    cannot pass only a wrong pose puts points, on walls by chance (0.15). Add 80 points through
+    it onto nothing (a wrong pose's view) and the same 40 are not enough."""
+    from fusion.ambiguity.fit import ScanFit
+    from fusion.settings.ambiguity import AmbiguityConfig
+    from houghloc import SegmentMap
+
+    walls = np.array([[-1, -3, 4, -3], [4, -3, 4, 3], [4, 3, -1, 3], [-1, 3, -1, -3],
+                      [2, -1, 2, 1]], dtype=float)
+    room = SegmentMap(walls[:, :2], walls[:, 2:], name="room")
+    side = np.column_stack((np.linspace(-0.9, 1.9, 320), np.where(np.arange(320) % 2, 3.0, -3.0)))
+    beyond = np.column_stack((np.full(40, 4.0), np.linspace(-0.45, 0.45, 40)))
+    nowhere = np.column_stack((np.full(80, 3.0), np.linspace(-0.45, 0.45, 80)))
+    for points, glass in ((np.vstack((side, beyond)), [4]),
+                          (np.vstack((side, beyond, nowhere)), [])):
+        fit = ScanFit(room, AmbiguityConfig())
+        fit.learn_glass(np.zeros(3), points, np.zeros(3))
+        assert np.flatnonzero(fit.glass).tolist() == glass
+
+
 def test_a_pose_sees_through_glass_onto_the_walls_beyond_only() -> None:
     """A room whose front wall, 2 m ahead, is glass: the laser passes it and meets the back
     wall 4 m ahead. With the map's glass wall opaque, the points beyond it are seen through a

@@ -12,6 +12,7 @@ hypotheses and judges the pose a local re-search found against the guess.
 
 from __future__ import annotations
 
+import math
 import statistics
 from collections import Counter, deque
 from dataclasses import dataclass, field
@@ -20,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.settings.ambiguity import AmbiguityConfig
+from fusion.settings.hypotheses import glass_log_odds, glass_points
 from houghloc import SegmentMap
 from houghloc.hypothesis_scores import seen_directly, walls_seen_through
 from houghloc.map_lookup import wall_distance
@@ -42,11 +44,48 @@ class ScanFit:
     guesses: deque = field(init=False)
     fixes: deque = field(init=False)
     tracked: deque = field(default_factory=lambda: deque(maxlen=TRACKED_FITS))
+    glass: NDArray[np.bool_] = field(init=False)
+    """per segment of the map: the walls tracking has seen through onto the walls beyond
+    (glass, a door the map shows closed), a fact about the building that every pose followed
+    later starts from (:meth:`learn_glass`)"""
+    _glass_odom: NDArray | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
         window = self.config.fit_window
         self.used, self.guesses, self.fixes = (
             deque(maxlen=window), deque(maxlen=window), deque(maxlen=window))
+        self.glass = np.zeros(len(self.map.starts), dtype=bool)
+
+    def learn_glass(self, pose: NDArray, points: NDArray, odom: NDArray | None,
+                    kinds: tuple[str, ...] = ("wall",)) -> None:
+        """An accepted scan at ``pose``: a wall its ``points`` were seen through is glass from
+        now on where enough of them lie on the walls beyond for a followed pose to take it
+        (:func:`~fusion.settings.hypotheses.glass_points`), and where they lie there as behind
+        glass rather than as a wrong pose's points would, by chance
+        (:func:`~fusion.settings.hypotheses.glass_log_odds` > 0): a fact about the building
+        needs more than one pose's bargain, as a wrong pose tracked for a while sees through
+        walls too. Looked at once the robot has moved by the bank's ``update_distance`` (or
+        turned ``update_angle_deg``) since the last look: scans closer together see the same
+        walls."""
+        model = self.config.hypotheses
+        if model is None or len(points) == 0 or "wall" not in kinds or odom is None:
+            return
+        odom = np.asarray(odom, float)
+        if self._glass_odom is not None:
+            step = odom - self._glass_odom
+            turn = abs(math.remainder(float(step[2]), math.tau))
+            if (math.hypot(step[0], step[1]) < model.update_distance
+                    and turn < math.radians(model.update_angle_deg)):
+                return
+        self._glass_odom = odom.copy()
+        pose = np.asarray(pose, float)
+        on = self._on_walls(pose.reshape(1, 3), points, kinds)[0]
+        crossed = walls_seen_through(pose, points, self.map, kinds, _reach(points),
+                                     self.config.global_match.visibility_margin, self.glass)
+        through = np.bincount(crossed[crossed >= 0], minlength=len(self.glass))
+        beyond = np.bincount(crossed[on & (crossed >= 0)], minlength=len(self.glass))
+        self.glass[(beyond >= glass_points(model, len(points)))
+                   & (glass_log_odds(model, beyond, through - beyond, len(points)) > 0.0)] = True
 
     def fractions(self, poses: NDArray, points: NDArray,
                   kinds: tuple[str, ...] = ("wall",)) -> NDArray[np.float64]:

@@ -162,7 +162,7 @@ class Relocalization:
                                "manager was made without make_tracker (a Localizer gives it "
                                "its own)")
         return HypothesisBank(self.map, self.config.hypotheses, self.make_tracker,
-                              self.fit.fractions, self.fit.shares_with_glass)
+                              self.fit.fractions, self.fit.shares_with_glass, self.fit.glass)
 
     def least_right_fit(self) -> float | None:
         """The least a right pose's scan fits (tracking's accepted scans' low quantile), if

@@ -96,6 +96,8 @@ class TrackingWatch:
             self.fix_found()
             if status == ScanStatus.ACCEPTED and guess_fit is not None:
                 self.fit.accepted(guess_fit)
+                if pose is not None and points is not None:
+                    self.fit.learn_glass(pose, points, odom, kinds)
         elif not self.fit.guess_holds(guess_fit):
             self._without_fix += 1
             if through_walls:
