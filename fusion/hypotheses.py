@@ -104,6 +104,18 @@ def scan_log_likelihood(shares: NDArray[np.float64], config: HypothesisConfig,
     return np.logaddexp(mapped, math.log(1.0 - config.mapped_probability) + n * (s @ np.log(q)))
 
 
+def moved_since(last: NDArray[np.float64] | None, odom: NDArray[np.float64],
+                config: HypothesisConfig) -> bool:
+    """Has the robot moved ``update_distance`` or turned ``update_angle_deg`` between the
+    odometry ``last`` (None: nothing looked at yet) and ``odom``? Scans closer together see the
+    same walls from nearly one place: one observation, not several."""
+    if last is None:
+        return True
+    step = relative(last, np.asarray(odom, float))
+    return (math.hypot(step[0], step[1]) >= config.update_distance
+            or abs(step[2]) >= math.radians(config.update_angle_deg))
+
+
 @dataclass
 class Hypothesis:
     """One followed pose: its filter, its weight, the fits of its latest weighed scans and how
@@ -244,7 +256,7 @@ class HypothesisBank:
                                 observed=observed)
             if fix.rank > 0 and not fix.ambiguous:
                 h.tracker.apply(t, fix.pose, fix.cov, fix.observable)
-        if not self._moved(odom):
+        if not moved_since(self._last_update, odom, self.config):
             return BankVerdict()
         self._last_update = np.asarray(odom, float).copy()
         poses = np.array([h.pose for h in self.hypotheses])
@@ -306,13 +318,6 @@ class HypothesisBank:
         weights /= weights.sum()
         for h, w in zip(self.hypotheses, weights, strict=True):
             h.weight = float(w)
-
-    def _moved(self, odom: NDArray[np.float64]) -> bool:
-        if self._last_update is None:
-            return True
-        step = relative(self._last_update, np.asarray(odom, float))
-        return (math.hypot(step[0], step[1]) >= self.config.update_distance
-                or abs(step[2]) >= math.radians(self.config.update_angle_deg))
 
     def _same_pose(self, pose: NDArray[np.float64], cov: NDArray[np.float64],
                    h: Hypothesis) -> bool:

@@ -12,7 +12,6 @@ hypotheses and judges the pose a local re-search found against the guess.
 
 from __future__ import annotations
 
-import math
 import statistics
 from collections import Counter, deque
 from dataclasses import dataclass, field
@@ -20,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.hypotheses import moved_since
 from fusion.settings.ambiguity import AmbiguityConfig
 from fusion.settings.hypotheses import glass_log_odds, glass_points
 from houghloc import SegmentMap
@@ -70,14 +70,9 @@ class ScanFit:
         model = self.config.hypotheses
         if model is None or len(points) == 0 or "wall" not in kinds or odom is None:
             return
-        odom = np.asarray(odom, float)
-        if self._glass_odom is not None:
-            step = odom - self._glass_odom
-            turn = abs(math.remainder(float(step[2]), math.tau))
-            if (math.hypot(step[0], step[1]) < model.update_distance
-                    and turn < math.radians(model.update_angle_deg)):
-                return
-        self._glass_odom = odom.copy()
+        if not moved_since(self._glass_odom, odom, model):
+            return
+        self._glass_odom = np.asarray(odom, float).copy()
         pose = np.asarray(pose, float)
         on = self._on_walls(pose.reshape(1, 3), points, kinds)[0]
         crossed = walls_seen_through(pose, points, self.map, kinds, _reach(points),
