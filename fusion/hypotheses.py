@@ -58,7 +58,7 @@ from statistics import NormalDist
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.settings.hypotheses import RECENT_FITS, HypothesisConfig, glass_points
+from fusion.settings.hypotheses import RECENT_FITS, HypothesisConfig
 from fusion.tracker import PoseTracker
 from houghloc import HoughConfig, localize_scan
 from houghloc.geometry import relative, wrap_scalar
@@ -102,6 +102,34 @@ def scan_log_likelihood(shares: NDArray[np.float64], config: HypothesisConfig,
     q = np.array([config.unmapped_hit_probability, config.unmapped_through_probability,
                   1.0 - config.unmapped_hit_probability - config.unmapped_through_probability])
     return np.logaddexp(mapped, math.log(1.0 - config.mapped_probability) + n * (s @ np.log(q)))
+
+
+def glass_points(config: HypothesisConfig, n_points: int) -> int:
+    """The fewest points on walls seen through one wall of a scan of ``n_points`` for which
+    taking that wall for glass explains the scan better, prior included: each such point moves
+    from seen through (p_t = ``through_probability``) to on a wall seen (p_h =
+    ``hit_probability``), worth n / N · log(p_h / p_t) with n = ``independent_points`` of N
+    points, and the wall costs log(1 / ``glass_probability``) once."""
+    per_point = config.independent_points / max(n_points, 1) * math.log(
+        config.hit_probability / config.through_probability)
+    return max(1, math.ceil(math.log(1.0 / config.glass_probability) / per_point))
+
+
+def glass_log_odds(config: HypothesisConfig, on_walls: NDArray[np.int_],
+                   off_walls: NDArray[np.int_], n_points: int) -> NDArray[np.float64]:
+    """The log odds that a wall the robot saw ``on_walls`` + ``off_walls`` points of a scan of
+    ``n_points`` through is glass, ``on_walls`` of them lying on the walls beyond it: behind
+    glass they lie on walls as at the right pose (``hit_probability``); behind a wall the
+    laser cannot pass, only a wrong pose puts points, and they lie on walls by chance, as in a
+    room the map lacks (``unmapped_hit_probability``). Each point is worth n / N of an
+    independent observation (n = ``independent_points``), and the prior odds are
+    ``glass_probability`` : 1 − ``glass_probability``."""
+    p, q = config.hit_probability, config.unmapped_hit_probability
+    per_point = config.independent_points / max(n_points, 1)
+    g = config.glass_probability
+    return (math.log(g / (1.0 - g)) + per_point * (
+        np.asarray(on_walls, float) * math.log(p / q)
+        + np.asarray(off_walls, float) * math.log((1.0 - p) / (1.0 - q))))
 
 
 def moved_since(last: NDArray[np.float64] | None, odom: NDArray[np.float64],

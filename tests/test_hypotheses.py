@@ -300,8 +300,8 @@ def test_tracking_learns_the_walls_it_sees_through_onto_walls_beyond() -> None:
     likelier than not), and not from a scan that stops at it. Scans are looked at once per
     ``update_distance`` travelled: a scan from where the last was looked at teaches nothing."""
     from fusion.ambiguity.fit import ScanFit
+    from fusion.hypotheses import glass_points
     from fusion.settings.ambiguity import AmbiguityConfig
-    from fusion.settings.hypotheses import glass_points
     from fusion.sim.config import LaserConfig
     from fusion.sim.laser import laser_scan
     from houghloc import SegmentMap

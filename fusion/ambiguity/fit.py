@@ -19,9 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.hypotheses import moved_since
+from fusion.hypotheses import glass_log_odds, glass_points, moved_since
 from fusion.settings.ambiguity import AmbiguityConfig
-from fusion.settings.hypotheses import glass_log_odds, glass_points
 from houghloc import SegmentMap
 from houghloc.hypothesis_scores import seen_directly, walls_seen_through
 from houghloc.map_lookup import wall_distance
@@ -60,9 +59,9 @@ class ScanFit:
                     kinds: tuple[str, ...] = ("wall",)) -> None:
         """An accepted scan at ``pose``: a wall its ``points`` were seen through is glass from
         now on where enough of them lie on the walls beyond for a followed pose to take it
-        (:func:`~fusion.settings.hypotheses.glass_points`), and where they lie there as behind
+        (:func:`~fusion.hypotheses.glass_points`), and where they lie there as behind
         glass rather than as a wrong pose's points would, by chance
-        (:func:`~fusion.settings.hypotheses.glass_log_odds` > 0): a fact about the building
+        (:func:`~fusion.hypotheses.glass_log_odds` > 0): a fact about the building
         needs more than one pose's bargain, as a wrong pose tracked for a while sees through
         walls too. Looked at once the robot has moved by the bank's ``update_distance`` (or
         turned ``update_angle_deg``) since the last look: scans closer together see the same
