@@ -94,4 +94,3 @@ class HypothesisConfig(BaseModel):
             raise ValueError("unmapped_hit_probability + unmapped_through_probability must be "
                              "below 1")
         return self
-
