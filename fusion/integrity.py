@@ -6,13 +6,13 @@ event, *confident-wrong*. The probability is the product of two factors:
 
 * **the mode** — is the filter's Gaussian around the right place at all? While tracking, 1 less
   the share of the evidence that gives tracking up gathered since the last usable fix (the
-  scans' worth of points seen through the map's walls, out of ``through_wall_scans``): the
-  decision and the probability read the same evidence. While hypotheses are followed, the
-  leader's weight (its posterior among them) once a global match has proposed rivals to it,
-  times the chance that its fits pass the test the bank takes a pose by (a share among poses
-  that all fit poorly says nothing, and one not weighed yet is 0:
-  ``HypothesisBank.leader_probability``); before that, and
-  while collecting views with no hypothesis or lost: 0 (``AmbiguityManager.mode_probability``).
+  scans' worth of points seen through the map's walls, out of ``through_wall_scans``), the
+  scan reported included: the decision and the probability read the same evidence. While
+  hypotheses are followed, the leader's weight (its posterior among them) once a global match
+  has proposed rivals to it, times the chance that its fits pass the test the bank takes a
+  pose by (a share among poses that all fit poorly says nothing, and one not weighed yet is 0:
+  ``HypothesisBank.leader_probability``); before that, and while collecting views with no
+  hypothesis or lost: 0 (``AmbiguityManager.mode_probability``).
 * **the spread** — the Gaussian mass ``P(‖e_xy‖ ≤ r) · P(|e_θ| ≤ h)`` of the filter's
   covariance, position and heading taken as independent (their correlation is small next to the
   bounds). A corridor whose position along it no fix observes has a wide σ along it, and this

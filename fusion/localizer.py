@@ -230,8 +230,8 @@ class Localizer:
            (:class:`fusion.decision.FixDecider`);
         4. apply: the filter takes it at ``t`` (late ones re-propagate the odometry since),
            gated by its normalised innovation;
-        5. manage: a local re-search where the scan fits worse than usual, the estimate, and
-           whether tracking is given up (:meth:`_manage`).
+        5. manage: a local re-search where the scan fits worse than usual, whether tracking
+           is given up, and the estimate (:meth:`_manage`).
         """
         cfg = self._sensor(sensor)
         admitted = self._admit(t, points, sensor, cfg)
@@ -318,8 +318,8 @@ class Localizer:
     def _manage(self, scan: TrackingScan, fix: ScanCorrection, decision: FixDecision,
                 status: ScanStatus, outcome: UpdateOutcome | None) -> Estimate:
         """The manager's turn after the filter's: a local re-search where the scan fits worse
-        than usual (its pose re-initialises the filter), then the estimate, then whether
-        tracking is given up."""
+        than usual (its pose re-initialises the filter), then whether tracking is given up,
+        then the estimate, whose probability so holds what this scan said against tracking."""
         t, verdict = scan.t, decision.verdict
         along, by_points = decision.along, decision.by_points
         with self.stats.timed("local"):
@@ -330,15 +330,15 @@ class Localizer:
                 and self.tracker.reset(re_searched.reset_pose, re_searched.reset_cov, t)):
             status, outcome, along, by_points = ScanStatus.RE_SEARCHED, None, None, None
             self._forget_chord()
-        estimate = self._finish(t, status, fix, outcome, scan.sensor, scan.points, along=along,
-                                by_points=by_points)
+        pose, cov = self._filter_at(t)
         refs = fix.references
-        # the manager gives tracking up here, when the scans stop giving usable fixes
-        self.manager.tracking_step(t, estimate.status, estimate.cov, estimate.pose,
-                                   self.tracker.odometry_at(t),
+        # the manager gives tracking up here, when the scans stop giving usable fixes; the
+        # estimate is made after, so that its probability holds this scan's evidence too
+        self.manager.tracking_step(t, status, cov, pose, self.tracker.odometry_at(t),
                                    None if refs is None else (refs.theta, refs.rho),
                                    verdict.guess_fit, scan.points, scan.kinds)
-        return estimate
+        return self._finish(t, status, fix, outcome, scan.sensor, scan.points, along=along,
+                            by_points=by_points)
 
     def _forget_chord(self) -> None:
         """The belief jumped or was given up: a fix before it and one after are no chord."""
@@ -411,12 +411,16 @@ class Localizer:
         """The estimate at ``t``: the filter's, or while several hypotheses are followed the
         ``leading`` one's (the likeliest pose; its status says it is not yet taken)."""
         self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
-        at_t = leading if leading is not None else self.tracker.pose_at(t)
-        pose, cov = at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
+        pose, cov = leading if leading is not None else self._filter_at(t)
         estimate = Estimate(t, pose, cov, status, fix, outcome, along, by_points,
                             self.manager.mode_probability)
         self.logger.log_scan(t, self.stats.scans - 1, sensor, points, fix, estimate)
         return estimate
+
+    def _filter_at(self, t: float) -> tuple[NDArray, NDArray]:
+        """The filter's pose and covariance at ``t`` (its newest when it holds none at t)."""
+        at_t = self.tracker.pose_at(t)
+        return at_t if at_t is not None else (self.tracker.pose, self.tracker.cov)
 
     def _sensor(self, name: str) -> SensorConfig:
         try:

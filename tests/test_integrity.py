@@ -16,6 +16,7 @@ from fusion.integrity import (
     LOCALIZED_POSITION,
     disc_probability,
     integrity_scores,
+    is_localized,
     localized_probability,
     spread_probability,
 )
@@ -118,3 +119,29 @@ def test_while_lost_it_says_so():
     searching = np.isin(statuses, ["lost", "collecting", "relocalizing"])
     assert searching.any()
     assert np.all(p[searching & (statuses == "lost")] == 0.0)
+
+
+def test_a_scan_reports_the_evidence_it_gave():
+    """The probability reported with a scan holds what that scan said against tracking: on the
+    scan that gives tracking up after a kidnap it is already the lost robot's, not the tracked
+    one's a scan before (a navigation stack acts on the scan's own estimate)."""
+    from fusion.ambiguity.manager import State
+    from fusion.config import LocalizerConfig
+    from fusion.events import Odometry, Scan
+    from fusion.localizer import Localizer
+    from tests.test_ambiguity import OFFICE, kidnap_run
+
+    run, t_kidnap = kidnap_run(seed=3)
+    loc = Localizer(run.map, LocalizerConfig.from_yaml(OFFICE), run.odom_truth[0])
+    given_up = None
+    for ev in run.events():
+        if isinstance(ev, Odometry):
+            loc.on_odometry(ev.t, ev.x, ev.y, ev.theta)
+        elif isinstance(ev, Scan):
+            was = loc.manager.state
+            est = loc.on_scan(ev.t, ev.ranges, ev.angles)
+            assert est.mode == loc.manager.mode_probability, ev.t
+            if was is State.TRACKING and loc.manager.state is not State.TRACKING:
+                given_up = (ev.t, est.localized_probability)
+    assert given_up is not None and given_up[0] >= t_kidnap
+    assert not is_localized(given_up[1])
