@@ -286,7 +286,8 @@ def test_the_poses_the_bank_takes_are_as_often_wrong_as_its_weights_say(monkeypa
 def test_held_out_buildings(tmp_path):
     """Seeds 1000–1049, never tuned on, run here only: the defaults' figures may not fall back
     below what they were when these guards were set (measured: median ATE 1.9 cm and lost
-    0.0 % outside the kidnaps' 5 s, confident-wrong 0.04 % (49 of 50 seeds at most 0.1 %),
+    0.0 % outside the kidnaps' 5 s, confident-wrong 0.0 % (median; mean 0.006 %, 0.036 %
+    before a scan's probability held its own evidence; 49 of 50 seeds at most 0.1 %),
     41 of 50 kidnaps recovered within 5 s, 33 before the glass tracking saw was known to the
     poses followed after a kidnap; docs/benchmark.md#generated-buildings). The goals are
     further: 0.1 % on every seed, 95 % of the kidnaps. (Their cost, 7 ms a scan at worst, is
@@ -306,7 +307,8 @@ def test_held_out_buildings(tmp_path):
 
     assert statistics.median(column("ate_outside_kidnap_m")) <= 0.05  # 1.9 cm measured
     assert statistics.median(column("lost_outside_kidnap_frac")) <= 0.01  # 0.0 %
-    assert statistics.median(column("confident_wrong_frac")) <= 0.002  # 0.04 %
+    assert statistics.median(column("confident_wrong_frac")) <= 0.002  # 0.0 %
+    assert statistics.mean(column("confident_wrong_frac")) <= 0.0002  # 0.006 %
     assert sum(v <= 0.001 for v in column("confident_wrong_frac")) >= 46  # 49
     assert sum(v <= 5.0 for v in column("recovery_s")) >= 37  # 41
 
