@@ -44,6 +44,16 @@ log = logging.getLogger(__name__)
 LOGGED_WARNINGS = 20  # of each kind, as they happen; metrics.json counts them all
 
 
+def compile_kernels(scan_matching: bool = True) -> None:
+    """Compile every kernel a localizer runs per scan, or load it from Numba's cache, once per
+    process, as a node does at start-up: the Hough path's, the filter's and, with scan
+    odometry (``scan_matching``), the scan matcher's."""
+    warm_up()
+    warm_up_filter()
+    if scan_matching:
+        warm_up_scan_matching()
+
+
 class Localizer:
     """Wheel odometry fused with Hough-transform pose fixes in an EKF, one event at a time.
 
@@ -57,8 +67,8 @@ class Localizer:
         self.map = map
         self.config = config or LocalizerConfig()
         self.logger = logger or NullLogger()
-        warm_up()  # the compiled kernels, before the first scan rather than on it
-        warm_up_filter()
+        # the compiled kernels, before the first scan rather than on it
+        compile_kernels(scan_matching=self.config.scan_odometry_sensor is not None)
         fc = self.config.filter
         if initial_pose is None:
             initial_pose = self.config.initial_pose
@@ -84,8 +94,6 @@ class Localizer:
         self.scan_odometry = (None if self._scan_odometry_sensor is None else
                               ScanOdometry(self.config.scan_odometry, self.tracker.motion,
                                            self.wheel_noise))
-        if self.scan_odometry is not None:
-            warm_up_scan_matching()
         self.manager = AmbiguityManager(map, self.config.ambiguity, logger=self.logger,
                                         make_tracker=self._tracker_at)
         self.decider = FixDecider(map, self.manager.fit, self.config.ambiguity.hypotheses)
@@ -337,8 +345,8 @@ class Localizer:
         self.manager.tracking_step(t, status, cov, pose, self.tracker.odometry_at(t),
                                    None if refs is None else (refs.theta, refs.rho),
                                    verdict.guess_fit, scan.points, scan.kinds)
-        return self._finish(t, status, fix, outcome, scan.sensor, scan.points, along=along,
-                            by_points=by_points)
+        return self._finish(t, status, fix, outcome, scan.sensor, scan.points, (pose, cov),
+                            along=along, by_points=by_points)
 
     def _forget_chord(self) -> None:
         """The belief jumped or was given up: a fix before it and one after are no chord."""
@@ -399,19 +407,19 @@ class Localizer:
         if decision.reset_pose is not None and decision.reset_cov is not None:
             self.tracker.reset(decision.reset_pose, decision.reset_cov, t)
             return self._finish(t, ScanStatus.RELOCALIZED, None, None, sensor, points)
-        leading = self.manager.leading_hypothesis
         return self._finish(t, ScanStatus.of_state(self.manager.state), None, None, sensor, points,
-                            leading)
+                            self.manager.leading_hypothesis)
 
     def _finish(self, t: float, status: ScanStatus, fix: ScanCorrection | None,
                 outcome: UpdateOutcome | None, sensor: str, points: NDArray,
-                leading: tuple[NDArray, NDArray] | None = None,
+                reported: tuple[NDArray, NDArray] | None = None,
                 along: CorridorMeasurement | None = None,
                 by_points: PointsMeasurement | None = None) -> Estimate:
-        """The estimate at ``t``: the filter's, or while several hypotheses are followed the
-        ``leading`` one's (the likeliest pose; its status says it is not yet taken)."""
+        """The estimate at ``t``: the ``reported`` pose and covariance (while several hypotheses
+        are followed, the leading one's: the likeliest pose, its status says it is not yet
+        taken), else the filter's."""
         self.stats.statuses[status] = self.stats.statuses.get(status, 0) + 1
-        pose, cov = leading if leading is not None else self._filter_at(t)
+        pose, cov = reported if reported is not None else self._filter_at(t)
         estimate = Estimate(t, pose, cov, status, fix, outcome, along, by_points,
                             self.manager.mode_probability)
         self.logger.log_scan(t, self.stats.scans - 1, sensor, points, fix, estimate)

@@ -81,19 +81,14 @@ def base_points(scan: Scan, sensor: SensorConfig) -> NDArray[np.float64]:
 
 
 def _houghloc(piece: Piece, config: LocalizerConfig, _method: Method) -> Localized:
+    from fusion.localizer import compile_kernels
     from fusion.run_log import run_log
-    from fusion.scan_odometry import warm_up as warm_up_scan_matching
-    from fusion.tracker import warm_up as warm_up_filter
-    from houghloc.warm_up import warm_up
 
     segment_map = piece.map_source.segment_map
-    # the kernels are compiled (or loaded from Numba's cache) once per process, as a robot's
-    # node does at start-up: the first run of a worker would otherwise charge tens of seconds
-    # of compiling to its scans, where the peers' start-up (AMCL's likelihood field) is not
-    # charged either
-    warm_up()
-    warm_up_filter()
-    warm_up_scan_matching()
+    # compiled before the clock starts, as a node compiles at start-up: the first run of a
+    # worker would otherwise charge tens of seconds of compiling to its scans, where the
+    # peers' start-up (AMCL's likelihood field) is not charged either
+    compile_kernels(scan_matching=config.scan_odometry_sensor is not None)
     cpu = time.process_time()
     run = run_log(piece.events, segment_map, config, initial_pose=piece.start, progress=False,
                   time_scans=True)
