@@ -35,7 +35,8 @@ class HypothesisConfig(BaseModel):
     through_probability: float = Field(
         0.05, gt=0.0, lt=1.0, description="share of a scan's points seen through a wall at "
         "the right pose (glass, doors the map has closed, wall ends): a pose that sees more "
-        "through walls is unlikely")
+        "through walls is unlikely, and one whose recent scans see more than this, beyond "
+        "their binomial noise at accept_probability, is not taken")
     # Where the map does not show what the scan sees at the reference pose (the benchmark's
     # uncovered poses on held-out maps), 0.03–0.31 of the points still lie on a wall and
     # 0.003–0.06 behind one (0.135 and 0.022 pooled); the held-out maps show it at 0.49–0.95 of
