@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import json
 import math
 
 import numpy as np
@@ -155,10 +156,14 @@ def test_a_sweep_of_generated_buildings_scores_integrity_and_recovery(tmp_path):
     for r in mine:
         assert 0.0 <= float(r["brier"]) <= 1.0
         assert float(r["confident_wrong_frac"]) <= float(r["lost_frac"])
+        bins = json.loads(r["reliability"])  # poses, right, Σ probability per bin
+        assert sum(n for n, _, _ in bins) == int(r["scans"])
+        assert all(0 <= right <= n and 0.0 <= total <= n for n, right, total in bins)
     # dead reckoning does not report how sure it is
     assert all(r["brier"] == "" for r in rows if r["method"] == "odometry")
     summary = (tmp_path / "out" / "summary.md").read_text()
     assert "## Integrity" in summary and "## Generated runs: goals" in summary
+    assert "## Reliability of the reported probability" in summary
 
 
 @pytest.mark.parametrize("seed", range(6))

@@ -375,3 +375,34 @@ def test_a_peer_lost_from_the_known_start_is_marked_suspect():
     text = summary_markdown(rows)
     assert "**Suspect** (a)" in text
     assert text.count("· suspect") == 2  # a's amcl-tuned same-run and amcl held-out cells
+
+
+def test_the_reliability_table_pools_runs_exactly():
+    """Each run's reliability table travels in one results.csv cell; the summary pools a
+    method's runs into the table the poses of all of them would give."""
+    from fusion.bench.report import reliability_markdown
+    from fusion.bench.task import reliability_cell
+    from fusion.integrity import integrity_scores
+
+    rng = np.random.default_rng(3)
+    runs = []
+    for n in (200, 300):
+        p = rng.uniform(size=n)
+        runs.append((p, rng.uniform(size=n) < p))
+    rows = [{"method": "houghloc", "protocol": "same-run", "settings": "{}",
+             "reliability": reliability_cell(integrity_scores(p, right)["reliability"])}
+            for p, right in runs]
+    rows.append({"method": "odometry", "protocol": "same-run", "settings": "{}",
+                 "reliability": ""})  # reports no probability: no row
+    text = reliability_markdown(rows)
+    pooled = integrity_scores(np.concatenate([p for p, _ in runs]),
+                              np.concatenate([r for _, r in runs]))["reliability"]
+    lines = [line for line in text.splitlines() if line.startswith("| houghloc")]
+    assert len(lines) == 1 and "odometry" not in text
+    cells = [c.strip() for c in lines[0].strip("|").split("|")][2:]
+    assert len(cells) == len(pooled)
+    for cell, b in zip(cells, pooled, strict=True):
+        n, mean, share = cell.split(" · ")
+        assert int(n.replace(",", "")) == b["scans"] > 0
+        assert float(mean) == pytest.approx(b["mean_probability"], abs=6e-4)
+        assert float(share) == pytest.approx(b["right"], abs=6e-4)

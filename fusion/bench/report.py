@@ -9,10 +9,14 @@ per run and method.
 from __future__ import annotations
 
 import io
+import json
 import math
 from collections.abc import Sequence
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from fusion.bench.data import COVERED_DISTANCE, COVERED_SHARE
 from fusion.bench.spec import Protocol
@@ -160,6 +164,7 @@ def summary_markdown(rows: Sequence[dict[str, Any]]) -> str:
             out.write(f"| {r['run']} | {_label(r)} | {when} | {_pct(_f(r, 'lost_frac'))} | "
                       f"{_f(r, 'cpu_ms_per_scan'):.2f} | {_worst(r)} |\n")
     out.write(integrity_markdown(ok))
+    out.write(reliability_markdown(ok))
     out.write(generated_markdown(ok))
     failed = [r for r in rows if r.get("status") != "ok"]
     if failed:
@@ -229,6 +234,38 @@ def integrity_markdown(ok: Sequence[dict[str, Any]]) -> str:
         out.write(f"| {r['run']} | {_label(r)} | {r['protocol']} | "
                   f"{_pct(_f(r, 'localized_frac'))} | {_pct(_f(r, 'confident_wrong_frac'))} | "
                   f"{_f(r, 'brier'):.3f} |\n")
+    return out.getvalue()
+
+
+def reliability_markdown(ok: Sequence[dict[str, Any]]) -> str:
+    """Per method and protocol, its runs' poses pooled by the probability reported with them
+    (:data:`fusion.integrity.RELIABILITY_BINS`): how many, their mean reported probability and
+    the share that were right (within the bounds of a lost pose). A calibrated method's share
+    right matches its mean probability in every bin."""
+    from fusion.integrity import RELIABILITY_BINS
+
+    groups: dict[tuple[str, str], np.ndarray] = {}
+    for r in ok:
+        cell = r.get("reliability") or ""
+        if not cell:
+            continue
+        counts = np.asarray(json.loads(cell), dtype=float).reshape(-1, 3)
+        key = (_label(r), r["protocol"])
+        groups[key] = groups[key] + counts if key in groups else counts
+    if not groups:
+        return ""
+    names = [f"{a:g}–{b:g}" for a, b in pairwise(RELIABILITY_BINS)]
+    out = io.StringIO()
+    out.write("\n## Reliability of the reported probability\n\nPoses pooled over the runs by "
+              "the probability reported with them; each cell: poses · mean reported · share "
+              "right.\n\n| method | protocol | " + " | ".join(names) + " |\n|---|---|"
+              + "---|" * len(names) + "\n")
+    for (label, protocol), counts in sorted(groups.items()):
+        cells = []
+        for n, right, total in counts:
+            cells.append("–" if n == 0 else
+                         f"{int(n):,} · {total / n:.3f} · {right / n:.3f}")
+        out.write(f"| {label} | {protocol} | " + " | ".join(cells) + " |\n")
     return out.getvalue()
 
 

@@ -38,7 +38,7 @@ LOST_HEADING_DEG = LOCALIZED_HEADING_DEG
 COLUMNS = ("task_id", "run", "method", "protocol", "settings", "scans", "ate_rmse_m",
            "ate_max_m", "heading_rmse_deg", "lost_frac", "covered_frac", "lost_covered_frac",
            "rel_trans_m", "rel_rot_rad", "global_time_s", "cpu_ms_per_scan", "cpu_ms_worst_10s",
-           "localized_frac", "confident_wrong_frac", "brier", "recovery_s",
+           "localized_frac", "confident_wrong_frac", "brier", "reliability", "recovery_s",
            "lost_outside_kidnap_frac", "ate_outside_kidnap_m", "status", "error")
 """The columns of ``results.csv``, in order."""
 
@@ -117,6 +117,20 @@ def _run(task: Task, row: dict[str, Any]) -> Trajectory:
     return trajectory
 
 
+def reliability_cell(bins: Any) -> str:
+    """The reliability table of one run (:func:`fusion.integrity.integrity_scores`) as one
+    ``results.csv`` cell: per bin of reported probability (``RELIABILITY_BINS``), the poses,
+    how many were right and the sum of their probabilities, so that runs pool exactly
+    (:func:`fusion.bench.report.reliability_markdown`)."""
+    cells = []
+    for b in bins:
+        n = int(b["scans"])
+        right = 0 if n == 0 else round(float(b["right"]) * n)
+        total = 0.0 if n == 0 else float(b["mean_probability"]) * n
+        cells.append([n, right, round(total, 4)])
+    return json.dumps(cells, separators=(",", ":"))
+
+
 def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list[Localized],
           max_dt: float, global_start: bool, kidnaps: list[float] | None = None
           ) -> dict[str, Any]:
@@ -146,7 +160,8 @@ def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list
         probability = np.concatenate([d.probability for d in done])[ate.association.est_index]
         scores = integrity_scores(probability, ~lost)
         out.update(localized_frac=scores["localized_fraction"],
-                   confident_wrong_frac=scores["confident_wrong"], brier=scores["brier"])
+                   confident_wrong_frac=scores["confident_wrong"], brier=scores["brier"],
+                   reliability=reliability_cell(scores["reliability"]))
     if kidnaps is not None:  # a simulated run: its kidnaps (if any) are known
         if kidnaps:
             out["recovery_s"] = max(recovery_times(est_t, lost, kidnaps))
