@@ -484,7 +484,7 @@ def test_the_best_of_poses_that_see_through_walls_is_not_taken(office) -> None:
     Φ((0.05 − 0.18)/σ + 1.645) = 0.0015 of its weight, σ = √(0.05 · 0.95 / 60) the binomial
     noise of two scans' share seen through walls at a right pose (0.05). A pose that sees 0.05
     through walls is taken and reported at Φ(1.645) = 0.95 of its weight, one at the bound
-    0.05 + 1.645 σ at half of it."""
+    0.05 + 1.645 σ at half of it. Tracking's own belief is held to the same test."""
     sigma = math.sqrt(0.05 * 0.95 / 60)
     bound = 0.05 + 1.645 * sigma
     for through, taken, share in ((0.18, False, 0.0015), (0.05, True, 0.95),
@@ -498,6 +498,14 @@ def test_the_best_of_poses_that_see_through_walls_is_not_taken(office) -> None:
             assert (verdicts[1].pose is not None) is taken, through
         got = b.leader_probability(0.45) / b.leader.weight
         assert got == pytest.approx(share, abs=2e-3), through
+    # tracking's own belief is tested too: one that drifted through rooms the map lacks sees
+    # through the walls of the rooms it shows
+    b = bank(office, lambda poses: [0.73, 0.3][: len(poses)],
+             through=lambda poses: [0.18, 0.0][: len(poses)])
+    b.seed(0.0, np.zeros(3), SPOTS[:1], [COV], [1.0], origin="tracked")
+    b.seed(0.0, np.zeros(3), SPOTS[1:2], [COV], [1.0])
+    verdicts = [weigh(b, odom=(STEP * k, 0.0, 0.0), least_fit=0.45) for k in (1, 2, 3)]
+    assert b.leader.origin == "tracked" and all(v.pose is None for v in verdicts)
 
 
 def test_tracking_given_up_too_early_is_taken_back_without_a_jump() -> None:

@@ -105,7 +105,12 @@ def test_fr079_whole_log_keeps_tracking() -> None:
     # map's walls, and taken again 14 scans later, right: the polished guesses before it had
     # tightened the filter, and at 951 s a second line no longer fell inside the matching gate.
     # The tuned configuration before the defaults: 4.8 cm, 21 cm, 0.1 %; without scan
-    # odometry: 2.8 %.
+    # odometry: 2.8 %. Since a taken pose must see through walls no more than a right pose
+    # does, the run spends 51 scans not tracking instead of about 14: in that room the belief
+    # sees 0.2 of each scan through the map's walls, and is taken back only once that falls.
+    # Exempting tracking's own belief from the test takes it back as before, but Freiburg 079
+    # held out then takes back a drifted belief (confident-wrong 3.7 → 6.4 %), so the belief
+    # is tested too.
     result = score(run(_need("fr079")))
     h = result["houghloc"]
     assert h["matched"] >= 4700
@@ -114,7 +119,7 @@ def test_fr079_whole_log_keeps_tracking() -> None:
     statuses = result["statuses"]
     assert "lost" not in statuses  # never given up for good
     not_tracking = sum(statuses.get(s, 0) for s in ("collecting", "relocalizing", "relocalized"))
-    assert not_tracking <= 0.005 * h["matched"]
+    assert not_tracking <= 0.0125 * h["matched"]  # measured 51 of 4,791
 
 
 @pytest.mark.slow
@@ -179,7 +184,7 @@ def test_fhw_spin_after_a_stalled_odometry_is_followed() -> None:
         "since the wheels' scale is learned (0.965; the same with it set by hand) Intel held "
         "out follows a look-alike 17 m away for 28 s at 989 s, reported lost since a taken "
         "pose must see through walls no more than a right pose does (taken before): ATE "
-        "3.1 m, 3.6 % lost; open in the issue on places never seen"))),
+        "2.41 m, 2.9 % of the covered poses lost; open in the issue on places never seen"))),
     ("fhw", 0.02, 0.12)])
 def test_held_out_maps_are_not_left_for_look_alikes(name, lost, ate) -> None:
     """In the map of the other part of the run, which lacks rooms the robot passes through, the
