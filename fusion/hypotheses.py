@@ -399,14 +399,7 @@ class HypothesisBank:
         pose weighed fewer times is read on the fits it has, their noise the larger."""
         if least_fit is None:
             return math.inf
-        c = self.config
-        f = min(max(least_fit, 0.0), 1.0)
-        scans = max(1, min(len(h.fits), c.min_scans))
-        sigma = math.sqrt(f * (1.0 - f) / (c.independent_points * scans))
-        gap = self._recent_fit(h) - least_fit
-        if sigma <= 0.0:
-            return math.inf if gap >= 0.0 else -math.inf
-        return gap / sigma + self._z_accept
+        return self._margin(self._recent(h.fits) - least_fit, least_fit, len(h.fits))
 
     def _through_margin(self, h: Hypothesis) -> float:
         """How far ``h``'s recent scans pass the verdict's test on the points seen through
@@ -421,16 +414,27 @@ class HypothesisBank:
         (Freiburg 079 held out: 0.16–0.20 of each scan, at 0.73 on walls)."""
         if not h.throughs:
             return math.inf
-        c = self.config
-        p = c.through_probability
-        scans = max(1, min(len(h.throughs), c.min_scans))
-        sigma = math.sqrt(p * (1.0 - p) / (c.independent_points * scans))
-        recent = float(np.mean(list(h.throughs)[-c.min_scans:]))
-        return (p - recent) / sigma + self._z_accept
+        p = self.config.through_probability
+        return self._margin(p - self._recent(h.throughs), p, len(h.throughs))
 
-    def _recent_fit(self, h: Hypothesis) -> float:
-        """The mean of ``h``'s last ``min_scans`` fits, what the verdict tests."""
-        return float(np.mean(list(h.fits)[-self.config.min_scans:]))
+    def _margin(self, gap: float, share: float, weighed: int) -> float:
+        """gap/σ + z: a gap between the mean share of a hypothesis's last ``min_scans`` scans
+        (fewer if it was ``weighed`` fewer times) and the ``share`` a right pose shows, in
+        units of that mean's binomial noise σ = √(s(1 − s) / (n · scans)), n =
+        ``independent_points``, offset by z, the standard normal quantile at
+        ``accept_probability`` (the tests of :meth:`_fit_margin` and :meth:`_through_margin`)."""
+        c = self.config
+        s = min(max(share, 0.0), 1.0)
+        scans = max(1, min(weighed, c.min_scans))
+        sigma = math.sqrt(s * (1.0 - s) / (c.independent_points * scans))
+        if sigma <= 0.0:
+            return math.inf if gap >= 0.0 else -math.inf
+        return gap / sigma + self._z_accept
+
+    def _recent(self, values: deque[float]) -> float:
+        """The mean of the last ``min_scans`` of a hypothesis's ``values`` (its fits, or its
+        shares seen through walls), what the verdict tests."""
+        return float(np.mean(list(values)[-self.config.min_scans:]))
 
     def leader_probability(self, least_fit: float | None) -> float:
         """The probability that the leader is the right pose, as the verdict reads the bank:
@@ -460,7 +464,7 @@ class HypothesisBank:
                 or leader.updates < c.min_scans or self._fit_margin(leader, least_fit) < 0.0
                 or self._through_margin(leader) < 0.0):
             return BankVerdict()
-        recent = self._recent_fit(leader)
+        recent = self._recent(leader.fits)
         return BankVerdict(leader.pose.copy(), leader.cov.copy(),
                            f"{leader.origin} hypothesis of weight {leader.weight:.3f} after "
                            f"{leader.updates} scans (recent fit {recent:.2f}), "

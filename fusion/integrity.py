@@ -9,8 +9,9 @@ event, *confident-wrong*. The probability is the product of two factors:
   scans' worth of points seen through the map's walls, out of ``through_wall_scans``), the
   scan reported included: the decision and the probability read the same evidence. While
   hypotheses are followed, the leader's weight (its posterior among them) once a global match
-  has proposed rivals to it, times the chance that its fits pass the test the bank takes a
-  pose by (a share among poses that all fit poorly says nothing, and one not weighed yet is 0:
+  has proposed rivals to it, times the chances that its fits and its points seen through
+  walls pass the tests the bank takes a pose by (a share among poses that all fit poorly, or
+  see through walls, says nothing, and one not weighed yet is 0:
   ``HypothesisBank.leader_probability``); before that, and while collecting views with no
   hypothesis or lost: 0 (``AmbiguityManager.mode_probability``).
 * **the spread** — the Gaussian mass ``P(‖e_xy‖ ≤ r) · P(|e_θ| ≤ h)`` of the filter's
@@ -25,6 +26,7 @@ event, *confident-wrong*. The probability is the product of two factors:
 from __future__ import annotations
 
 import math
+from itertools import pairwise
 
 import numpy as np
 from numpy.typing import NDArray
@@ -91,6 +93,20 @@ RELIABILITY_BINS = (0.0, 0.1, 0.5, 0.9, 0.99, 1.0)
 """Edges of the reliability table's bins of reported probability (the last bin includes 1)."""
 
 
+def reliability_counts(probability: NDArray[np.float64], right: NDArray[np.bool_]
+                       ) -> NDArray[np.float64]:
+    """Per bin of reported probability (``RELIABILITY_BINS``), the poses, how many of them were
+    ``right`` and the sum of their probabilities: counts, so that runs pool by adding them."""
+    p = np.asarray(probability, dtype=float)
+    ok = np.asarray(right, dtype=bool)
+    edges = np.asarray(RELIABILITY_BINS)
+    which = np.clip(np.searchsorted(edges, p, side="right") - 1, 0, len(edges) - 2)
+    bins = len(edges) - 1
+    return np.column_stack((np.bincount(which, minlength=bins),
+                            np.bincount(which, weights=ok.astype(float), minlength=bins),
+                            np.bincount(which, weights=p, minlength=bins)))
+
+
 def integrity_scores(probability: NDArray[np.float64], right: NDArray[np.bool_] | None = None
                      ) -> dict[str, object]:
     """What the reported probabilities say, and — given which poses were ``right`` (within the
@@ -110,11 +126,10 @@ def integrity_scores(probability: NDArray[np.float64], right: NDArray[np.bool_] 
     ok = np.asarray(right, dtype=bool)
     out["confident_wrong"] = float(np.mean(reported & ~ok))
     out["brier"] = float(np.mean((p - ok) ** 2))
-    edges = np.asarray(RELIABILITY_BINS)
-    which = np.clip(np.searchsorted(edges, p, side="right") - 1, 0, len(edges) - 2)
     out["reliability"] = [
-        {"from": float(edges[k]), "to": float(edges[k + 1]), "scans": int(np.sum(which == k)),
-         "mean_probability": float(np.mean(p[which == k])) if np.any(which == k) else None,
-         "right": float(np.mean(ok[which == k])) if np.any(which == k) else None}
-        for k in range(len(edges) - 1)]
+        {"from": a, "to": b, "scans": int(n),
+         "mean_probability": float(total / n) if n else None,
+         "right": float(hits / n) if n else None}
+        for (a, b), (n, hits, total) in zip(pairwise(RELIABILITY_BINS),
+                                             reliability_counts(p, ok), strict=True)]
     return out

@@ -390,7 +390,7 @@ def test_the_reliability_table_pools_runs_exactly():
         p = rng.uniform(size=n)
         runs.append((p, rng.uniform(size=n) < p))
     rows = [{"method": "houghloc", "protocol": "same-run", "settings": "{}",
-             "reliability": reliability_cell(integrity_scores(p, right)["reliability"])}
+             "reliability": reliability_cell(p, right)}
             for p, right in runs]
     rows.append({"method": "odometry", "protocol": "same-run", "settings": "{}",
                  "reliability": ""})  # reports no probability: no row

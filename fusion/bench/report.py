@@ -21,6 +21,7 @@ import numpy as np
 from fusion.bench.data import COVERED_DISTANCE, COVERED_SHARE
 from fusion.bench.spec import Protocol
 from fusion.bench.task import LOST_HEADING_DEG, LOST_POSITION
+from fusion.integrity import RELIABILITY_BINS
 
 PEER_SANITY_LOST = 0.05
 """The peers' sanity gate: a tuned peer lost on more than this share of a log's scans, from the
@@ -242,8 +243,6 @@ def reliability_markdown(ok: Sequence[dict[str, Any]]) -> str:
     (:data:`fusion.integrity.RELIABILITY_BINS`): how many, their mean reported probability and
     the share that were right (within the bounds of a lost pose). A calibrated method's share
     right matches its mean probability in every bin."""
-    from fusion.integrity import RELIABILITY_BINS
-
     groups: dict[tuple[str, str], np.ndarray] = {}
     for r in ok:
         cell = r.get("reliability") or ""

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from fusion.bench.data import Piece, RunData, covered
 from fusion.bench.generated import kidnap_times, outside_allowance, recovery_times, simulated
@@ -28,7 +29,12 @@ from fusion.evaluation import (
     Trajectory,
     window_means,
 )
-from fusion.integrity import LOCALIZED_HEADING_DEG, LOCALIZED_POSITION, integrity_scores
+from fusion.integrity import (
+    LOCALIZED_HEADING_DEG,
+    LOCALIZED_POSITION,
+    integrity_scores,
+    reliability_counts,
+)
 
 LOST_POSITION = LOCALIZED_POSITION
 """m: a pose farther than this from the reference is lost (as is one off by LOST_HEADING_DEG):
@@ -117,18 +123,14 @@ def _run(task: Task, row: dict[str, Any]) -> Trajectory:
     return trajectory
 
 
-def reliability_cell(bins: Any) -> str:
-    """The reliability table of one run (:func:`fusion.integrity.integrity_scores`) as one
-    ``results.csv`` cell: per bin of reported probability (``RELIABILITY_BINS``), the poses,
-    how many were right and the sum of their probabilities, so that runs pool exactly
+def reliability_cell(probability: NDArray[np.float64], right: NDArray[np.bool_]) -> str:
+    """A run's reliability table as one ``results.csv`` cell: per bin of reported probability,
+    the poses, how many were right and the sum of their probabilities
+    (:func:`fusion.integrity.reliability_counts`), which runs pool by adding
     (:func:`fusion.bench.report.reliability_markdown`)."""
-    cells = []
-    for b in bins:
-        n = int(b["scans"])
-        right = 0 if n == 0 else round(float(b["right"]) * n)
-        total = 0.0 if n == 0 else float(b["mean_probability"]) * n
-        cells.append([n, right, round(total, 4)])
-    return json.dumps(cells, separators=(",", ":"))
+    return json.dumps([[int(n), int(hits), round(float(total), 4)]
+                       for n, hits, total in reliability_counts(probability, right)],
+                      separators=(",", ":"))
 
 
 def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list[Localized],
@@ -161,7 +163,7 @@ def score(trajectory: Trajectory, data: RunData, pieces: list[Piece], done: list
         scores = integrity_scores(probability, ~lost)
         out.update(localized_frac=scores["localized_fraction"],
                    confident_wrong_frac=scores["confident_wrong"], brier=scores["brier"],
-                   reliability=reliability_cell(scores["reliability"]))
+                   reliability=reliability_cell(probability, ~lost))
     if kidnaps is not None:  # a simulated run: its kidnaps (if any) are known
         if kidnaps:
             out["recovery_s"] = max(recovery_times(est_t, lost, kidnaps))
